@@ -8,3 +8,9 @@ pub mod geom;
 pub mod scene;
 
 pub use error::{Error, Result};
+pub mod trace;
+pub mod reference;
+pub mod render;
+pub mod report;
+pub mod cells;
+pub mod cli;

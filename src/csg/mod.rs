@@ -3,10 +3,12 @@
 //! per-region restriction (Algorithm 3). Pure computation: no I/O, no
 //! threads, cannot fail.
 
+pub mod eval;
 pub mod shape;
 pub mod span;
 pub mod tree;
 
+pub use eval::{EvalCounts, Evaluator};
 pub use shape::{Crossing, Polygon, PrimHits, Primitive, Shape};
 pub use span::{Boundary, Span, SpanList};
 pub use tree::{CsgNode, CsgTree, NodeId, Op};

@@ -5,11 +5,16 @@
 
 pub mod load;
 pub mod model;
+pub mod nff;
 
 pub use load::{load_scene, parse_scene_str, SceneSyntax};
 
 use crate::csg::{CsgTree, Primitive};
 use crate::geom::{Color, Vec3};
+
+/// The largest `max_depth` a scene or `--max-depth` may ask for: enough for
+/// any hall of mirrors a Whitted image can show, and a bound on the ray tree.
+pub const MAX_DEPTH_LIMIT: u32 = 64;
 
 /// Index into `Scene::materials`. `MaterialId::DEFAULT` is the default
 /// material of `SCENE_FORMAT.md`.

@@ -1,0 +1,427 @@
+//! Partitioning in the projection plane (section 3.2): the projected
+//! rectangles of the minimal boxes are decomposed into their four segments,
+//! and a binary space partition by the segments' lines cuts the infinite
+//! screen plane into rectangles, the super cells. Then corner stitching
+//! (section 4, figure 6; Ousterhout 1984) links every super cell to its
+//! neighbours by the eight corner pointers.
+
+use std::collections::VecDeque;
+
+use super::projection::{contains, Rect};
+
+/// How the BSP chooses the segment whose line splits a region (section 3.2
+/// discusses the choice).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum SegmentChoice {
+    /// The paper's choice: the segment whose line splits the fewest other
+    /// segments. Quadratic in the segments of a region: slow for thousands
+    /// of primitives, as the paper says.
+    FewestSplits,
+    /// The default: the fewest-splits rule over a fixed sample of 16
+    /// candidates, ties broken toward balance, which keeps the tree
+    /// logarithmic and the build near n log n (the paper's "search the
+    /// optimal segment in a sub-set of the segment list").
+    #[default]
+    Sampled,
+}
+
+/// A segment of a rectangle's edge: on the line `axis = c` (axis 0: a
+/// vertical line x = c), spanning `[a, b]` along the other axis.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Seg {
+    axis: u8,
+    c: f64,
+    a: f64,
+    b: f64,
+}
+
+/// A node of the BSP, kept for locating points without a hint.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum BspNode {
+    /// Points with `screen[axis] < c` (ties by direction) go to `lo`.
+    Split { axis: u8, c: f64, lo: u32, hi: u32 },
+    Leaf(u32),
+}
+
+/// Indices of the eight corner pointers (figure 6): PTLD.left, PTLD.down,
+/// PTLU.left, PTLU.up, PTRU.right, PTRU.up, PTRD.right, PTRD.down.
+pub mod stitch {
+    pub const LD_LEFT: usize = 0;
+    pub const LD_DOWN: usize = 1;
+    pub const LU_LEFT: usize = 2;
+    pub const LU_UP: usize = 3;
+    pub const RU_RIGHT: usize = 4;
+    pub const RU_UP: usize = 5;
+    pub const RD_RIGHT: usize = 6;
+    pub const RD_DOWN: usize = 7;
+    /// No neighbour (the edge is at infinity).
+    pub const NONE: u32 = u32::MAX;
+}
+
+/// A leaf of the partition: a rectangle and the rectangles (primitives)
+/// covering it. Every listed rectangle covers the whole leaf unless the
+/// subdivision was stopped early.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Leaf {
+    pub rect: Rect,
+    pub prims: Vec<u32>,
+    /// Corner pointers, indexed by `stitch::*`, to other leaves.
+    pub stitches: [u32; 8],
+}
+
+/// The partition of the screen plane.
+#[derive(Clone, Debug, Default)]
+pub struct Partition {
+    pub nodes: Vec<BspNode>,
+    pub leaves: Vec<Leaf>,
+    /// Segments cut by chosen lines during the build.
+    pub splits: u64,
+}
+
+/// Limits that bound the subdivision when rectangles pile up
+/// (`ROBUSTNESS.md` case 15: thousands of overlapping primitives end the
+/// subdivision in bounded time).
+const MAX_DEPTH: u32 = 64;
+
+struct Pending {
+    node: u32,
+    rect: Rect,
+    segs: Vec<Seg>,
+    prims: Vec<u32>,
+    depth: u32,
+}
+
+/// Builds the partition of the plane for `rects` (indexed by primitive
+/// number; `None` for primitives not in this region).
+pub fn partition(rects: &[Option<Rect>], choice: SegmentChoice) -> Partition {
+    let mut segs = Vec::new();
+    let mut prims = Vec::new();
+    for (i, r) in rects.iter().enumerate() {
+        let Some(r) = r else { continue };
+        prims.push(i as u32);
+        for axis in 0..2 {
+            let other = 1 - axis;
+            for c in [r.lo(axis), r.hi(axis)] {
+                if c.is_finite() && r.lo(other) < r.hi(other) {
+                    segs.push(Seg {
+                        axis: axis as u8,
+                        c,
+                        a: r.lo(other),
+                        b: r.hi(other),
+                    });
+                }
+            }
+        }
+    }
+    let n = prims.len();
+    // Budget of leaves: beyond it, pending regions become leaves as they are.
+    let max_leaves = 16 * n + 64;
+    let mut out = Partition::default();
+    out.nodes.push(BspNode::Leaf(0));
+    let mut queue = VecDeque::new();
+    queue.push_back(Pending {
+        node: 0,
+        rect: Rect::PLANE,
+        segs,
+        prims,
+        depth: 0,
+    });
+    // Breadth first, so an exhausted budget stops all regions alike.
+    while let Some(p) = queue.pop_front() {
+        let leaves_if_stopped = out.leaves.len() + queue.len() + 1;
+        let choice_here = if p.segs.is_empty() || p.depth >= MAX_DEPTH || leaves_if_stopped >= max_leaves {
+            None
+        } else {
+            choose(&p.segs, choice)
+        };
+        let Some((axis, c)) = choice_here else {
+            let id = out.leaves.len() as u32;
+            out.nodes[p.node as usize] = BspNode::Leaf(id);
+            out.leaves.push(Leaf {
+                rect: p.rect,
+                prims: p.prims,
+                stitches: [stitch::NONE; 8],
+            });
+            continue;
+        };
+        let a = axis as usize;
+        let (mut lo_segs, mut hi_segs) = (Vec::new(), Vec::new());
+        for s in &p.segs {
+            if s.axis == axis {
+                if s.c < c {
+                    lo_segs.push(*s);
+                } else if s.c > c {
+                    hi_segs.push(*s);
+                } // on the line: used up by this split
+            } else if s.b <= c {
+                lo_segs.push(*s);
+            } else if s.a >= c {
+                hi_segs.push(*s);
+            } else {
+                out.splits += 1;
+                lo_segs.push(Seg { b: c, ..*s });
+                hi_segs.push(Seg { a: c, ..*s });
+            }
+        }
+        // Half-open regions: [lo, c) and [c, hi). A rectangle belongs to a
+        // side when its interior reaches into it.
+        let lo_prims: Vec<u32> = p.prims.iter().copied().filter(|&i| rects[i as usize].is_some_and(|r| r.lo(a) < c)).collect();
+        let hi_prims: Vec<u32> = p.prims.iter().copied().filter(|&i| rects[i as usize].is_some_and(|r| r.hi(a) > c)).collect();
+        let mut lo_rect = p.rect;
+        lo_rect.set_hi(a, c);
+        let mut hi_rect = p.rect;
+        hi_rect.set_lo(a, c);
+        let lo = out.nodes.len() as u32;
+        out.nodes.push(BspNode::Leaf(0));
+        out.nodes.push(BspNode::Leaf(0));
+        out.nodes[p.node as usize] = BspNode::Split { axis, c, lo, hi: lo + 1 };
+        queue.push_back(Pending {
+            node: lo,
+            rect: lo_rect,
+            segs: lo_segs,
+            prims: lo_prims,
+            depth: p.depth + 1,
+        });
+        queue.push_back(Pending {
+            node: lo + 1,
+            rect: hi_rect,
+            segs: hi_segs,
+            prims: hi_prims,
+            depth: p.depth + 1,
+        });
+    }
+    stitch_all(&mut out);
+    out
+}
+
+/// Splits caused and balance of the line through `s`.
+fn score(segs: &[Seg], axis: u8, c: f64) -> (usize, usize) {
+    let (mut splits, mut lo, mut hi) = (0usize, 0usize, 0usize);
+    for s in segs {
+        if s.axis == axis {
+            if s.c < c {
+                lo += 1
+            } else if s.c > c {
+                hi += 1
+            }
+        } else if s.b <= c {
+            lo += 1
+        } else if s.a >= c {
+            hi += 1
+        } else {
+            splits += 1
+        }
+    }
+    (splits, lo.abs_diff(hi))
+}
+
+fn choose(segs: &[Seg], choice: SegmentChoice) -> Option<(u8, f64)> {
+    let candidates: Vec<&Seg> = match choice {
+        SegmentChoice::FewestSplits => segs.iter().collect(),
+        SegmentChoice::Sampled => {
+            const K: usize = 16;
+            if segs.len() <= K {
+                segs.iter().collect()
+            } else {
+                (0..K).map(|k| &segs[k * segs.len() / K + segs.len() / (2 * K)]).collect()
+            }
+        }
+    };
+    candidates
+        .into_iter()
+        .map(|s| (score(segs, s.axis, s.c), s.axis, s.c))
+        .min_by(|a, b| a.0.cmp(&b.0))
+        .map(|(_, axis, c)| (axis, c))
+}
+
+/// Tiles along the four edges of a subtree's region, in increasing order
+/// along the edge.
+struct Edges {
+    left: Vec<u32>,
+    right: Vec<u32>,
+    bottom: Vec<u32>,
+    top: Vec<u32>,
+}
+
+/// Corner stitching built from the BSP in one bottom-up pass: when two
+/// halves of a region are joined, the tiles facing each other across the
+/// splitting line get their pointers by one merge walk along it. No search
+/// over the whole structure (the role of the paper's Algorithm 2).
+fn stitch_all(p: &mut Partition) {
+    if p.nodes.is_empty() {
+        return;
+    }
+    let nodes = std::mem::take(&mut p.nodes);
+    stitch_node(&nodes, 0, &mut p.leaves);
+    p.nodes = nodes;
+}
+
+fn stitch_node(nodes: &[BspNode], n: u32, leaves: &mut [Leaf]) -> Edges {
+    use stitch::*;
+    match nodes[n as usize] {
+        BspNode::Leaf(l) => Edges {
+            left: vec![l],
+            right: vec![l],
+            bottom: vec![l],
+            top: vec![l],
+        },
+        BspNode::Split { axis, lo, hi, .. } => {
+            let a = stitch_node(nodes, lo, leaves);
+            let b = stitch_node(nodes, hi, leaves);
+            if axis == 0 {
+                // Vertical line: `a` on the left, `b` on the right; the
+                // facing edges run along y.
+                link(leaves, &a.right, &b.left, 1, [RD_RIGHT, RU_RIGHT], [LD_LEFT, LU_LEFT]);
+                Edges {
+                    left: a.left,
+                    right: b.right,
+                    bottom: [a.bottom, b.bottom].concat(),
+                    top: [a.top, b.top].concat(),
+                }
+            } else {
+                link(leaves, &a.top, &b.bottom, 0, [LU_UP, RU_UP], [LD_DOWN, RD_DOWN]);
+                Edges {
+                    left: [a.left, b.left].concat(),
+                    right: [a.right, b.right].concat(),
+                    bottom: a.bottom,
+                    top: b.top,
+                }
+            }
+        }
+    }
+}
+
+/// Stitches two facing edge lists sorted along `axis`: for each tile, the
+/// pointer at its low corner goes to the facing tile containing that corner
+/// (`[lo, hi)`), the one at its high corner to the facing tile containing
+/// the point just below it (`(lo, hi]`).
+fn link(leaves: &mut [Leaf], near: &[u32], far: &[u32], axis: usize, near_ptrs: [usize; 2], far_ptrs: [usize; 2]) {
+    let find = |leaves: &[Leaf], list: &[u32], q: f64, high_corner: bool| -> u32 {
+        // Lists are short on average; a binary search keeps long ones fast.
+        let idx = list.partition_point(|&t| {
+            let r = &leaves[t as usize].rect;
+            if high_corner { r.hi(axis) < q } else { r.hi(axis) <= q }
+        });
+        list.get(idx).copied().filter(|&t| {
+            let r = &leaves[t as usize].rect;
+            if high_corner { r.lo(axis) < q || q == f64::NEG_INFINITY } else { contains(r.lo(axis), r.hi(axis), q, 1.0) }
+        })
+        .unwrap_or(stitch::NONE)
+    };
+    for &t in near {
+        let r = leaves[t as usize].rect;
+        let low = find(leaves, far, r.lo(axis), false);
+        let high = find(leaves, far, r.hi(axis), true);
+        leaves[t as usize].stitches[near_ptrs[0]] = low;
+        leaves[t as usize].stitches[near_ptrs[1]] = high;
+    }
+    for &t in far {
+        let r = leaves[t as usize].rect;
+        let low = find(leaves, near, r.lo(axis), false);
+        let high = find(leaves, near, r.hi(axis), true);
+        leaves[t as usize].stitches[far_ptrs[0]] = low;
+        leaves[t as usize].stitches[far_ptrs[1]] = high;
+    }
+}
+
+impl Partition {
+    /// The leaf containing screen point `(x, y)` for a ray moving with
+    /// signs `(mx, my)`, by descending the BSP.
+    pub fn locate(&self, x: f64, y: f64, mx: f64, my: f64) -> u32 {
+        let mut n = 0usize;
+        loop {
+            match self.nodes[n] {
+                BspNode::Leaf(l) => return l,
+                BspNode::Split { axis, c, lo, hi } => {
+                    let (q, m) = if axis == 0 { (x, mx) } else { (y, my) };
+                    n = if q > c || (q == c && m >= 0.0) { hi as usize } else { lo as usize };
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rect(x0: f64, x1: f64, y0: f64, y1: f64) -> Option<Rect> {
+        Some(Rect { x0, x1, y0, y1 })
+    }
+
+    /// Brute-force check of every stitch against its definition.
+    fn check_stitches(p: &Partition) {
+        use stitch::*;
+        let find = |x: f64, y: f64, mx: f64, my: f64| -> u32 {
+            let hits: Vec<u32> = (0..p.leaves.len() as u32)
+                .filter(|&i| {
+                    let r = &p.leaves[i as usize].rect;
+                    contains(r.x0, r.x1, x, mx) && contains(r.y0, r.y1, y, my)
+                })
+                .collect();
+            assert!(hits.len() <= 1, "tiles overlap at ({x}, {y})");
+            hits.first().copied().unwrap_or(NONE)
+        };
+        for (i, l) in p.leaves.iter().enumerate() {
+            let r = l.rect;
+            let expect = |ptr: usize| -> u32 {
+                match ptr {
+                    LD_LEFT => find(r.x0, r.y0, -1.0, 1.0),
+                    LD_DOWN => find(r.x0, r.y0, 1.0, -1.0),
+                    LU_LEFT => find(r.x0, r.y1, -1.0, -1.0),
+                    LU_UP => find(r.x0, r.y1, 1.0, 1.0),
+                    RU_RIGHT => find(r.x1, r.y1, 1.0, -1.0),
+                    RU_UP => find(r.x1, r.y1, -1.0, 1.0),
+                    RD_RIGHT => find(r.x1, r.y0, 1.0, 1.0),
+                    _ => find(r.x1, r.y0, -1.0, -1.0),
+                }
+            };
+            for ptr in 0..8 {
+                // The coordinate each pointer crosses; none across infinity.
+                let across = match ptr {
+                    LD_LEFT | LU_LEFT => r.x0,
+                    RU_RIGHT | RD_RIGHT => r.x1,
+                    LD_DOWN | RD_DOWN => r.y0,
+                    _ => r.y1,
+                };
+                let e = if across.is_finite() { expect(ptr) } else { NONE };
+                assert_eq!(l.stitches[ptr], e, "leaf {i} {r:?} pointer {ptr}");
+            }
+        }
+    }
+
+    #[test]
+    fn partition_covers_the_plane_and_stitches_are_exact() {
+        let rects = vec![rect(0.0, 2.0, 0.0, 1.0), rect(1.0, 3.0, 0.5, 2.0), rect(-1.0, 0.5, -2.0, -1.0), None, rect(2.5, 4.0, -1.0, 0.75)];
+        for choice in [SegmentChoice::FewestSplits, SegmentChoice::Sampled] {
+            let p = partition(&rects, choice);
+            check_stitches(&p);
+            // Every leaf's primitives cover it entirely (the lists emptied).
+            for l in &p.leaves {
+                for &i in &l.prims {
+                    let r = rects[i as usize].unwrap();
+                    assert!(r.x0 <= l.rect.x0 && l.rect.x1 <= r.x1 && r.y0 <= l.rect.y0 && l.rect.y1 <= r.y1);
+                }
+            }
+            // Point location agrees with the tiles.
+            for &(x, y) in &[(0.1, 0.1), (1.5, 0.75), (-5.0, 7.0), (2.0, 0.5), (3.9, -0.9)] {
+                let l = &p.leaves[p.locate(x, y, 1.0, 1.0) as usize];
+                assert!(contains(l.rect.x0, l.rect.x1, x, 1.0) && contains(l.rect.y0, l.rect.y1, y, 1.0));
+            }
+        }
+    }
+
+    #[test]
+    fn piled_up_rectangles_end_in_bounded_time() {
+        // 2000 nearly identical rectangles (case 15's projection).
+        let rects: Vec<Option<Rect>> = (0..2000)
+            .map(|i| {
+                let e = i as f64 * 1e-5;
+                rect(-1.0 + e, 1.0 - e, -1.0 + e * 0.5, 1.0 + e)
+            })
+            .collect();
+        let p = partition(&rects, SegmentChoice::Sampled);
+        assert!(p.leaves.len() <= 16 * 2000 + 64);
+        check_stitches(&p);
+    }
+}

@@ -1,0 +1,326 @@
+//! The projective screen system of the paper's section 7, made total.
+//!
+//! Camera coordinates: `x = (p−eye)·right`, `y = (p−eye)·up`,
+//! `z = (p−eye)·forward`. Space is cut by the eye plane `z = 0` into two
+//! regions, each with its own cell structure:
+//!
+//! * `Front` (`z > 0`): screen coordinates `(x/z, y/z)`, depth `z`. The
+//!   perspective projection becomes parallel: a primary ray has constant
+//!   screen coordinates (figure 11), and a cell's side faces `x = c·z` are
+//!   planes through the eye.
+//! * `Back` (`z ≤ 0`): screen coordinates `(x, y)`, depth `z`, an
+//!   orthographic structure for what lies behind the eye plane, where the
+//!   perspective map is singular or reversed (`ROBUSTNESS.md` cases 19-20).
+//!
+//! In both, cells are axis-aligned boxes in (screen x, screen y, depth).
+//! Crossing parameters are computed from plane equations in camera space,
+//! never by dividing by `z`, so nothing is singular at the eye plane; hits
+//! and spans stay in world space.
+
+use crate::geom::{Aabb, Ray, Vec3};
+use crate::trace::CameraFrame;
+
+/// Which half of space a structure covers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Region {
+    Front,
+    Back,
+}
+
+impl Region {
+    pub const BOTH: [Region; 2] = [Region::Front, Region::Back];
+
+    /// The depth interval of the region.
+    pub fn depth_range(self) -> (f64, f64) {
+        match self {
+            Region::Front => (0.0, f64::INFINITY),
+            Region::Back => (f64::NEG_INFINITY, 0.0),
+        }
+    }
+}
+
+/// A 2D half-open rectangle `[x0, x1) × [y0, y1)` of the screen plane;
+/// bounds may be infinite (the plane is infinite, section 3.2).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Rect {
+    pub x0: f64,
+    pub x1: f64,
+    pub y0: f64,
+    pub y1: f64,
+}
+
+impl Rect {
+    pub const PLANE: Rect = Rect {
+        x0: f64::NEG_INFINITY,
+        x1: f64::INFINITY,
+        y0: f64::NEG_INFINITY,
+        y1: f64::INFINITY,
+    };
+
+    pub fn lo(&self, axis: usize) -> f64 {
+        if axis == 0 { self.x0 } else { self.y0 }
+    }
+
+    pub fn hi(&self, axis: usize) -> f64 {
+        if axis == 0 { self.x1 } else { self.y1 }
+    }
+
+    pub fn set_lo(&mut self, axis: usize, v: f64) {
+        if axis == 0 { self.x0 = v } else { self.y0 = v }
+    }
+
+    pub fn set_hi(&mut self, axis: usize, v: f64) {
+        if axis == 0 { self.x1 = v } else { self.y1 = v }
+    }
+}
+
+/// Is `q` in the half-open `[lo, hi)` for a ray moving with sign `m` along
+/// the axis? Ties go to the side the ray moves into (`ROBUSTNESS.md`: cells
+/// are half-open, point location breaks ties by the ray's direction); an
+/// infinite bound contains the matching infinity.
+#[inline]
+pub fn contains(lo: f64, hi: f64, q: f64, m: f64) -> bool {
+    let above_lo = q > lo || (q == lo && (m >= 0.0 || lo == f64::NEG_INFINITY));
+    let below_hi = q < hi || (q == hi && (m < 0.0 || hi == f64::INFINITY));
+    above_lo && below_hi
+}
+
+/// The camera frame in which cells are axis-aligned.
+#[derive(Clone, Copy, Debug)]
+pub struct View {
+    pub eye: Vec3,
+    pub right: Vec3,
+    pub up: Vec3,
+    pub forward: Vec3,
+}
+
+impl View {
+    pub fn new(cam: &CameraFrame) -> View {
+        View {
+            eye: cam.eye,
+            right: cam.right,
+            up: cam.up,
+            forward: cam.forward,
+        }
+    }
+
+    pub fn point(&self, p: Vec3) -> Vec3 {
+        let q = p - self.eye;
+        Vec3::new(q.dot(self.right), q.dot(self.up), q.dot(self.forward))
+    }
+
+    pub fn vector(&self, v: Vec3) -> Vec3 {
+        Vec3::new(v.dot(self.right), v.dot(self.up), v.dot(self.forward))
+    }
+
+    /// A world ray in camera coordinates (same `t`).
+    pub fn ray(&self, r: &Ray) -> CamRay {
+        CamRay {
+            o: self.point(r.origin),
+            d: self.vector(r.dir),
+        }
+    }
+
+    /// The screen rectangle and depth interval covered by `b ∩ region`, or
+    /// None when the box misses the region. The box is clipped by the eye
+    /// plane before projecting (clip before dividing by w): the projection
+    /// of a convex polytope is bounded by its vertices' projections, and a
+    /// vertex on the eye plane stands for screen points at infinity.
+    pub fn project_box(&self, b: &Aabb, region: Region) -> Option<(Rect, f64, f64)> {
+        if b.is_empty() {
+            return None;
+        }
+        let corners = b.corners().map(|c| self.point(c));
+        let keep = |z: f64| match region {
+            Region::Front => z >= 0.0,
+            Region::Back => z <= 0.0,
+        };
+        let mut verts: Vec<Vec3> = corners.iter().copied().filter(|c| keep(c.z)).collect();
+        // Edges of the box that cross the eye plane contribute a vertex on it.
+        const EDGES: [(usize, usize); 12] = [(0, 1), (2, 3), (4, 5), (6, 7), (0, 2), (1, 3), (4, 6), (5, 7), (0, 4), (1, 5), (2, 6), (3, 7)];
+        for (i, j) in EDGES {
+            let (a, c) = (corners[i], corners[j]);
+            if (a.z < 0.0 && c.z > 0.0) || (a.z > 0.0 && c.z < 0.0) {
+                let s = a.z / (a.z - c.z);
+                let mut p = a + (c - a) * s;
+                p.z = 0.0;
+                verts.push(p);
+            }
+        }
+        if verts.is_empty() {
+            return None;
+        }
+        let mut r = Rect {
+            x0: f64::INFINITY,
+            x1: f64::NEG_INFINITY,
+            y0: f64::INFINITY,
+            y1: f64::NEG_INFINITY,
+        };
+        let (mut z0, mut z1) = (f64::INFINITY, f64::NEG_INFINITY);
+        for v in &verts {
+            z0 = z0.min(v.z);
+            z1 = z1.max(v.z);
+            match region {
+                Region::Back => {
+                    r.x0 = r.x0.min(v.x);
+                    r.x1 = r.x1.max(v.x);
+                    r.y0 = r.y0.min(v.y);
+                    r.y1 = r.y1.max(v.y);
+                }
+                Region::Front if v.z > 0.0 => {
+                    let (sx, sy) = (v.x / v.z, v.y / v.z);
+                    r.x0 = r.x0.min(sx);
+                    r.x1 = r.x1.max(sx);
+                    r.y0 = r.y0.min(sy);
+                    r.y1 = r.y1.max(sy);
+                }
+                Region::Front => {
+                    // A vertex on the eye plane: the projection reaches
+                    // infinity on the side of its sign (both sides at 0).
+                    if v.x >= 0.0 {
+                        r.x1 = f64::INFINITY;
+                    }
+                    if v.x <= 0.0 {
+                        r.x0 = f64::NEG_INFINITY;
+                    }
+                    if v.y >= 0.0 {
+                        r.y1 = f64::INFINITY;
+                    }
+                    if v.y <= 0.0 {
+                        r.y0 = f64::NEG_INFINITY;
+                    }
+                }
+            }
+        }
+        let (rz0, rz1) = region.depth_range();
+        Some((inflate_rect(r), inflate(z0, z1, 0).0.max(rz0), inflate(z0, z1, 0).1.min(rz1)))
+    }
+}
+
+/// Relative inflation of projected bounds: rounding in the camera transform
+/// and in crossing parameters is ~1e-16 relative, so a primitive assigned
+/// over bounds grown by 1e-12 is never missed by a ray that rounding puts in
+/// a neighbouring cell.
+const INFLATE_REL: f64 = 1e-12;
+
+fn inflate(lo: f64, hi: f64, _axis: usize) -> (f64, f64) {
+    let pad = (lo.abs().max(hi.abs()) * INFLATE_REL).max(f64::MIN_POSITIVE);
+    let pad = if pad.is_finite() { pad } else { 0.0 };
+    (lo - pad, hi + pad)
+}
+
+fn inflate_rect(r: Rect) -> Rect {
+    // Screen coordinates of the front region are slopes, dimensionless:
+    // a floor of 1e-15 there is scale-free.
+    let (x0, x1) = inflate(r.x0, r.x1, 0);
+    let (y0, y1) = inflate(r.y0, r.y1, 1);
+    let f = |v: f64, s: f64| if v.is_finite() { v + s } else { v };
+    Rect {
+        x0: f(x0, -1e-15),
+        x1: f(x1, 1e-15),
+        y0: f(y0, -1e-15),
+        y1: f(y1, 1e-15),
+    }
+}
+
+/// A ray in camera coordinates.
+#[derive(Clone, Copy, Debug)]
+pub struct CamRay {
+    pub o: Vec3,
+    pub d: Vec3,
+}
+
+impl CamRay {
+    pub fn at(&self, t: f64) -> Vec3 {
+        self.o + self.d * t
+    }
+
+    /// The sign of the ray's motion along screen axis `axis` (0: x, 1: y):
+    /// `d/dt (x/z) ∝ dx·oz − ox·dz` is constant along a ray in the front
+    /// region; in the back region the motion is `d[axis]`.
+    pub fn motion(&self, region: Region, axis: usize) -> f64 {
+        match region {
+            Region::Front => self.d[axis] * self.o.z - self.o[axis] * self.d.z,
+            Region::Back => self.d[axis],
+        }
+    }
+
+    /// Where the ray crosses the side plane `screen[axis] = c` (None when
+    /// parallel or `c` is infinite).
+    #[inline]
+    pub fn cross_side(&self, region: Region, axis: usize, c: f64) -> Option<f64> {
+        if !c.is_finite() {
+            return None;
+        }
+        match region {
+            Region::Front => {
+                // x − c·z = 0 through the eye: no division by z. The plane
+                // also holds the mirror image of the face (z < 0, where
+                // x/z = c too): a crossing there is not a crossing of the face.
+                let t = (c * self.o.z - self.o[axis]) / (self.d[axis] - c * self.d.z);
+                (t.is_finite() && self.o.z + t * self.d.z > 0.0).then_some(t)
+            }
+            Region::Back => {
+                let t = (c - self.o[axis]) / self.d[axis];
+                t.is_finite().then_some(t)
+            }
+        }
+    }
+
+    /// Where the ray crosses the depth plane `z = c`.
+    #[inline]
+    pub fn cross_depth(&self, c: f64) -> Option<f64> {
+        if !c.is_finite() {
+            return None;
+        }
+        let t = (c - self.o.z) / self.d.z;
+        t.is_finite().then_some(t)
+    }
+
+    /// Screen coordinates at `t` in `region`. On the eye plane (front region
+    /// entered from behind, or a primary ray at the eye) the limit of
+    /// `x/z` as the ray moves into `z > 0` is used: ±∞ by the sign of `x`,
+    /// or `dx/dz` where `x` is 0 too.
+    pub fn screen_at(&self, region: Region, t: f64) -> (f64, f64, f64) {
+        let p = self.at(t);
+        match region {
+            Region::Back => (p.x, p.y, p.z.min(0.0)),
+            Region::Front if p.z > 0.0 => (p.x / p.z, p.y / p.z, p.z),
+            Region::Front => {
+                let lim = |x: f64, dx: f64| {
+                    if x > 0.0 {
+                        f64::INFINITY
+                    } else if x < 0.0 {
+                        f64::NEG_INFINITY
+                    } else {
+                        let v = dx / self.d.z;
+                        if v.is_nan() { 0.0 } else { v }
+                    }
+                };
+                // A point at the eye itself (primary rays): x = y = 0.
+                (lim(p.x, self.d.x), lim(p.y, self.d.y), 0.0)
+            }
+        }
+    }
+
+    /// The parameter interval `[lo, hi)` of the ray in `region`, in the
+    /// order the ray meets the regions; the eye plane crossing belongs to
+    /// the region entered second.
+    pub fn region_interval(&self, region: Region) -> (f64, f64) {
+        let dz = self.d.z;
+        if dz == 0.0 {
+            let in_front = self.o.z > 0.0;
+            return if in_front == (region == Region::Front) {
+                (f64::NEG_INFINITY, f64::INFINITY)
+            } else {
+                (0.0, 0.0)
+            };
+        }
+        let t0 = -self.o.z / dz;
+        let front_first = dz < 0.0;
+        match (region == Region::Front, front_first) {
+            (true, true) | (false, false) => (f64::NEG_INFINITY, t0),
+            _ => (t0, f64::INFINITY),
+        }
+    }
+}

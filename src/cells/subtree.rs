@@ -1,0 +1,114 @@
+//! Distributing the CSG tree over the cells (section 6, Algorithm 3): each
+//! cell keeps the minimal subtree over the primitives that reach into it.
+//!
+//! The paper's rules, generalised to n-ary operators, with "empty" for an
+//! operand none of whose primitives reach the cell:
+//! * union, assembly: the non-empty operands (one left: that operand);
+//! * difference: empty if the first operand is; else the first minus the
+//!   non-empty others (none left: the first);
+//! * intersection: empty if any operand is.
+//!
+//! Only the ancestors of the cell's primitives are visited, so a cell costs
+//! its primitives times the tree depth, never the whole tree.
+
+use crate::csg::{CsgNode, CsgTree, NodeId, Op, PrimId};
+use crate::geom::Aabb;
+
+const NONE: u32 = u32::MAX;
+
+/// Builds per-cell subtrees of one scene tree into an arena.
+pub struct SubtreeBuilder<'a> {
+    tree: &'a CsgTree,
+    /// Per node of `tree`, its minimal box (Algorithm 1), for culling.
+    minimal: &'a [Aabb],
+    parent: Vec<u32>,
+    /// Per primitive, its leaf node.
+    leaf_of: Vec<u32>,
+    stamp: Vec<u32>,
+    generation: u32,
+    result: Vec<u32>,
+    marked: Vec<u32>,
+}
+
+impl<'a> SubtreeBuilder<'a> {
+    pub fn new(tree: &'a CsgTree, minimal: &'a [Aabb], primitives: usize) -> Self {
+        let mut parent = vec![NONE; tree.nodes.len()];
+        let mut leaf_of = vec![NONE; primitives];
+        for (i, n) in tree.nodes.iter().enumerate() {
+            match n {
+                CsgNode::Leaf(p) => leaf_of[p.index()] = i as u32,
+                CsgNode::Op { .. } => {
+                    for c in tree.children_of(NodeId(i as u32)) {
+                        parent[c.index()] = i as u32;
+                    }
+                }
+            }
+        }
+        SubtreeBuilder {
+            tree,
+            minimal,
+            parent,
+            leaf_of,
+            stamp: vec![0; tree.nodes.len()],
+            generation: 0,
+            result: vec![NONE; tree.nodes.len()],
+            marked: Vec::new(),
+        }
+    }
+
+    /// The subtree over `prims` (Algorithm 3), added to `arena`; None when
+    /// nothing of the scene can be seen in the cell.
+    pub fn build(&mut self, prims: &[u32], arena: &mut CsgTree) -> Option<NodeId> {
+        let root = self.tree.root?;
+        self.generation += 1;
+        let g = self.generation;
+        self.marked.clear();
+        for &p in prims {
+            let mut n = self.leaf_of[p as usize];
+            while n != NONE && self.stamp[n as usize] != g {
+                self.stamp[n as usize] = g;
+                self.marked.push(n);
+                n = self.parent[n as usize];
+            }
+        }
+        // Children precede parents in the arena: ascending ids are bottom-up.
+        self.marked.sort_unstable();
+        let mut kids = Vec::new();
+        for k in 0..self.marked.len() {
+            let n = self.marked[k];
+            let bounds = self.minimal[n as usize];
+            let r = match self.tree.nodes[n as usize] {
+                CsgNode::Leaf(p) => arena.leaf_with_bounds(PrimId(p.0), bounds).0,
+                CsgNode::Op { op, .. } => {
+                    kids.clear();
+                    let mut any_empty = false;
+                    let mut first_empty = false;
+                    for (i, c) in self.tree.children_of(NodeId(n)).iter().enumerate() {
+                        let present = self.stamp[c.index()] == g && self.result[c.index()] != NONE;
+                        if present {
+                            kids.push(NodeId(self.result[c.index()]));
+                        } else {
+                            any_empty = true;
+                            first_empty |= i == 0;
+                        }
+                    }
+                    let emptied = match op {
+                        Op::Intersection => any_empty,
+                        Op::Difference => first_empty,
+                        Op::Union | Op::Assembly => kids.is_empty(),
+                    };
+                    if emptied {
+                        NONE
+                    } else if kids.len() == 1 {
+                        kids[0].0
+                    } else {
+                        arena.op_with_bounds(op, kids.clone(), bounds).0
+                    }
+                }
+            };
+            self.result[n as usize] = r;
+        }
+        let r = if self.stamp[root.index()] == g { self.result[root.index()] } else { NONE };
+        (r != NONE).then_some(NodeId(r))
+    }
+}

@@ -1,0 +1,65 @@
+//! Roth's brute force, the oracle (`--accel roth`): every ray against the
+//! whole CSG tree, with bounding-box culling at tree nodes (which never
+//! changes a span list, see `CsgTree::cull_bounds`). Written for
+//! obviousness; every faster path is tested against it.
+
+use crate::csg::{EvalCounts, Evaluator, PrimHits};
+use crate::geom::Ray;
+use crate::scene::Scene;
+use crate::trace::{Hit, Tracer};
+
+/// The brute-force tracer of one thread.
+pub struct RothTracer<'a> {
+    scene: &'a Scene,
+    eval: Evaluator,
+    /// Primitive intersection tests performed.
+    pub intersection_tests: u64,
+    pub counts: EvalCounts,
+}
+
+impl<'a> RothTracer<'a> {
+    pub fn new(scene: &'a Scene) -> Self {
+        RothTracer {
+            scene,
+            eval: Evaluator::new(),
+            intersection_tests: 0,
+            counts: EvalCounts::default(),
+        }
+    }
+
+    /// The span list of the whole tree along `ray` (for tests).
+    pub fn spans(&mut self, ray: &Ray) -> crate::csg::SpanList {
+        let Some(root) = self.scene.tree.root else {
+            return Default::default();
+        };
+        let prims = &self.scene.primitives;
+        let tests = &mut self.intersection_tests;
+        self.eval
+            .evaluate(&self.scene.tree, root, ray, true, &mut self.counts, |p| {
+                *tests += 1;
+                prims[p.index()].intersect(ray)
+            })
+            .clone()
+    }
+}
+
+impl Tracer for RothTracer<'_> {
+    fn nearest(&mut self, ray: &Ray, t_min: f64, t_max: f64) -> Option<Hit> {
+        let root = self.scene.tree.root?;
+        let prims = &self.scene.primitives;
+        let tests = &mut self.intersection_tests;
+        let spans = self.eval.evaluate(&self.scene.tree, root, ray, true, &mut self.counts, |p| {
+            *tests += 1;
+            let h: PrimHits = prims[p.index()].intersect(ray);
+            h
+        });
+        spans.first_between(t_min, t_max).map(Hit::from)
+    }
+
+    fn counters(&self) -> crate::render::TraceCounters {
+        crate::render::TraceCounters {
+            intersection_tests: self.intersection_tests,
+            mailbox_hits: 0,
+        }
+    }
+}

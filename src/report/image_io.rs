@@ -1,0 +1,176 @@
+//! Image files: PNG and PPM (sRGB, 8 bits) and OpenEXR (linear float),
+//! chosen by extension and written atomically (a temporary file in the same
+//! folder, then a rename), so a failed or interrupted run never leaves a
+//! partial image. Also reading a reference image and measuring error.
+
+use std::io::BufWriter;
+use std::path::Path;
+
+use image::{ImageFormat, Rgb32FImage, RgbImage};
+
+use crate::error::{Error, Result};
+
+/// The output formats, by extension.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OutputFormat {
+    Png,
+    Ppm,
+    Exr,
+}
+
+impl OutputFormat {
+    /// The format for `path`'s extension, or a usage error naming it.
+    pub fn for_path(path: &Path) -> Result<OutputFormat> {
+        let ext = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase());
+        match ext.as_deref() {
+            Some("png") => Ok(OutputFormat::Png),
+            Some("ppm") => Ok(OutputFormat::Ppm),
+            Some("exr") => Ok(OutputFormat::Exr),
+            _ => Err(Error::Usage(format!(
+                "{}: unknown output format; use .png, .ppm or .exr",
+                path.display()
+            ))),
+        }
+    }
+}
+
+/// The sRGB transfer function of a linear value, clamped to [0, 1].
+pub fn srgb_encode(linear: f32) -> f32 {
+    let c = if linear.is_nan() { 0.0 } else { linear.clamp(0.0, 1.0) };
+    if c <= 0.003_130_8 { c * 12.92 } else { 1.055 * c.powf(1.0 / 2.4) - 0.055 }
+}
+
+fn srgb_decode(v: f32) -> f32 {
+    if v <= 0.040_45 { v / 12.92 } else { ((v + 0.055) / 1.055).powf(2.4) }
+}
+
+/// Display values (sRGB-encoded, in [0, 1]) of linear pixels.
+pub fn to_display(linear: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    linear.iter().map(|p| p.map(srgb_encode)).collect()
+}
+
+/// 8-bit sRGB bytes of linear pixels.
+pub fn to_srgb8(linear: &[[f32; 3]]) -> Vec<u8> {
+    linear.iter().flat_map(|p| p.map(|c| (srgb_encode(c) * 255.0).round() as u8)).collect()
+}
+
+/// Writes linear pixels to `path` atomically in the format of its extension.
+pub fn write_image(path: &Path, width: u32, height: u32, linear: &[[f32; 3]]) -> Result<()> {
+    let format = OutputFormat::for_path(path)?;
+    let err = |message: String| Error::Write {
+        path: path.to_path_buf(),
+        message,
+    };
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let mut tmp = tempfile::Builder::new()
+        .prefix(".hypercast-")
+        .suffix(".tmp")
+        .tempfile_in(dir)
+        .map_err(|e| err(e.to_string()))?;
+    {
+        let mut w = BufWriter::new(tmp.as_file_mut());
+        let result = match format {
+            OutputFormat::Png | OutputFormat::Ppm => {
+                let img = RgbImage::from_raw(width, height, to_srgb8(linear)).ok_or_else(|| err("image size mismatch".into()))?;
+                let f = if format == OutputFormat::Png { ImageFormat::Png } else { ImageFormat::Pnm };
+                img.write_to(&mut w, f)
+            }
+            OutputFormat::Exr => {
+                let data: Vec<f32> = linear.iter().flatten().copied().collect();
+                let img = Rgb32FImage::from_raw(width, height, data).ok_or_else(|| err("image size mismatch".into()))?;
+                img.write_to(&mut w, ImageFormat::OpenExr)
+            }
+        };
+        result.map_err(|e| err(e.to_string()))?;
+        std::io::Write::flush(&mut w).map_err(|e| err(e.to_string()))?;
+    }
+    tmp.as_file().sync_all().map_err(|e| err(e.to_string()))?;
+    // The rename is the commit point: until it, `path` is untouched.
+    tmp.persist(path).map_err(|e| err(e.error.to_string()))?;
+    Ok(())
+}
+
+/// Reads an image as display values (sRGB-encoded, [0, 1]); EXR files are
+/// linear and are encoded the same way as rendered pixels.
+pub fn read_display_image(path: &Path) -> Result<(u32, u32, Vec<[f32; 3]>)> {
+    let img = image::open(path).map_err(|e| match e {
+        image::ImageError::IoError(source) => Error::Read {
+            path: path.to_path_buf(),
+            source,
+        },
+        other => Error::Usage(format!("{}: not a readable image: {other}", path.display())),
+    })?;
+    let linear_file = matches!(OutputFormat::for_path(path), Ok(OutputFormat::Exr));
+    let (w, h) = (img.width(), img.height());
+    let px: Vec<[f32; 3]> = if linear_file {
+        img.to_rgb32f().pixels().map(|p| p.0.map(srgb_encode)).collect()
+    } else {
+        img.to_rgb8().pixels().map(|p| p.0.map(|c| c as f32 / 255.0)).collect()
+    };
+    Ok((w, h, px))
+}
+
+/// Error of an image against a reference, on display values in [0, 1].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ImageMetrics {
+    pub rmse: f64,
+    /// Peak signal-to-noise ratio in dB (infinite for identical images).
+    pub psnr: f64,
+    pub max_error: f64,
+}
+
+/// Compares display values of equal size.
+pub fn compare(image: &[[f32; 3]], reference: &[[f32; 3]]) -> ImageMetrics {
+    let mut sum = 0.0f64;
+    let mut max = 0.0f64;
+    for (a, b) in image.iter().zip(reference) {
+        for k in 0..3 {
+            let d = (a[k] as f64 - b[k] as f64).abs();
+            sum += d * d;
+            max = max.max(d);
+        }
+    }
+    let n = (image.len() * 3).max(1) as f64;
+    let rmse = (sum / n).sqrt();
+    let psnr = if rmse == 0.0 { f64::INFINITY } else { -20.0 * rmse.log10() };
+    ImageMetrics { rmse, psnr, max_error: max }
+}
+
+/// Linear values of display values (inverse of `to_display`).
+pub fn from_display(display: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    display.iter().map(|p| p.map(srgb_decode)).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn srgb_round_trips() {
+        for v in [0.0f32, 0.001, 0.2, 0.5, 1.0] {
+            assert!((srgb_decode(srgb_encode(v)) - v).abs() < 1e-5);
+        }
+    }
+
+    #[test]
+    fn identical_images_have_infinite_psnr() {
+        let a = vec![[0.1, 0.2, 0.3]; 4];
+        let m = compare(&a, &a);
+        assert_eq!(m.rmse, 0.0);
+        assert!(m.psnr.is_infinite());
+        let b = vec![[0.1, 0.2, 0.4]; 4];
+        let m = compare(&a, &b);
+        assert!((m.max_error - 0.1).abs() < 1e-6);
+    }
+
+    #[test]
+    fn unknown_extension_is_refused_before_anything_is_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("x.jpg");
+        assert!(write_image(&p, 1, 1, &[[0.0; 3]]).is_err());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    }
+}
