@@ -6,9 +6,25 @@
 //! interval; surfaces (triangles, polygons, open cylinders and cones) are
 //! crossed at most twice. `t` is never clipped here: negative values are kept
 //! until after CSG combination (Roth 1982; `ROBUSTNESS.md`).
+//!
+//! Ray directions are never assumed to be unit length, and no absolute
+//! epsilon appears: quadratics use the Haines/Günther/Akenine-Möller form
+//! (Ray Tracing Gems ch. 7), triangles the watertight test of Woop, Benthin
+//! and Wald (JCGT 2013) with a top-left tie rule so that a ray through a
+//! shared edge or vertex crosses a closed mesh exactly once per side, and
+//! every division by a direction component is guarded (a ray parallel to a
+//! slab or cap plane is inside it or not by its origin alone). Ties between
+//! faces are broken by fixed rules (lowest box axis; a cap over a side; a
+//! zero-radius cap or a ray through the apex is the apex part) so normals at
+//! edges, rims and apexes are deterministic, unit and finite. `intersect` allocates nothing.
+
+// Comparisons are written `!(x > 0.0)` on purpose: a NaN lands in the
+// "no hit" branch.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use crate::geom::{Aabb, Affine, Ray, Vec3};
 use crate::scene::MaterialId;
+use glam::DMat3;
 
 /// A primitive's geometry in its own coordinates.
 #[derive(Clone, Debug, PartialEq)]
@@ -18,9 +34,20 @@ pub enum Shape {
     /// Parts: 0..6 = face `2·axis + side` (side 0 at `min`, 1 at `max`).
     Box { min: Vec3, max: Vec3 },
     /// Parts: 0 side, 1 base cap, 2 top cap. A surface when not capped.
-    Cylinder { base: Vec3, top: Vec3, radius: f64, capped: bool },
+    Cylinder {
+        base: Vec3,
+        top: Vec3,
+        radius: f64,
+        capped: bool,
+    },
     /// Parts: 0 side, 1 base cap, 2 top cap, 3 the apex. A surface when not capped.
-    Cone { base: Vec3, base_radius: f64, top: Vec3, top_radius: f64, capped: bool },
+    Cone {
+        base: Vec3,
+        base_radius: f64,
+        top: Vec3,
+        top_radius: f64,
+        capped: bool,
+    },
     /// A surface. Parts: 0.
     Triangle { a: Vec3, b: Vec3, c: Vec3 },
     /// A planar surface, triangulated at load. Parts: 0.
@@ -50,9 +77,15 @@ pub enum PrimHits {
     Miss,
     /// A solid: the ray is inside over `[enter.t, exit.t]`, `enter.t < exit.t`
     /// (zero-length spans are dropped, `ROBUSTNESS.md` case 2).
-    Solid { enter: Crossing, exit: Crossing },
+    Solid {
+        enter: Crossing,
+        exit: Crossing,
+    },
     /// A surface: `count` crossings (0, 1 or 2) sorted by `t`.
-    Sheet { hits: [Crossing; 2], count: u8 },
+    Sheet {
+        hits: [Crossing; 2],
+        count: u8,
+    },
 }
 
 /// A primitive placed in the world.
@@ -68,16 +101,36 @@ pub struct Primitive {
     pub bounds: Aabb,
 }
 
+/// Part numbers shared by cylinders and cones.
+const SIDE: u8 = 0;
+const BASE_CAP: u8 = 1;
+const TOP_CAP: u8 = 2;
+const APEX: u8 = 3;
+
 impl Primitive {
     /// Places `shape` in the world by `to_world`. Where the map can be folded
     /// into the parameters without loss (boxes under translation and positive
-    /// axis scales; spheres, cylinders, cones, triangles and polygons under
-    /// similarities; everything under the identity), it is, so that a scaled
-    /// and translated unit box meets another box's faces at bit-identical `t`
-    /// (`ROBUSTNESS.md` cases 9-10).
+    /// axis scales; spheres under similarities; cylinders and cones whenever
+    /// their cross-section stays circular, which includes similarities and
+    /// an axis-aligned cylinder scaled equally across its axis; triangles and
+    /// polygons under every affine map, since their images are again
+    /// triangles and planar polygons; everything under the identity), it is,
+    /// so that a scaled and translated unit box meets another box's faces at
+    /// bit-identical `t` (`ROBUSTNESS.md` cases 9-10). Otherwise the shape
+    /// stays in object space with `transform: Some(*to_world)`.
     pub fn new(shape: Shape, to_world: &Affine, material: MaterialId) -> Primitive {
-        let _ = (shape, to_world, material);
-        todo!("shape helper")
+        let (shape, transform) = if to_world.is_identity() {
+            (shape, None)
+        } else {
+            bake(shape, to_world)
+        };
+        let bounds = world_bounds(&shape, transform.as_ref());
+        Primitive {
+            shape,
+            transform,
+            material,
+            bounds,
+        }
     }
 
     /// True for solids (spheres, boxes, capped cylinders and cones).
@@ -90,15 +143,988 @@ impl Primitive {
     }
 
     /// The crossings of the (world) ray with this primitive, `t` unclipped.
+    /// A transformed primitive is intersected with the ray mapped into its
+    /// object space; `t` is the same in both spaces because the direction is
+    /// mapped without renormalising.
     pub fn intersect(&self, ray: &Ray) -> PrimHits {
-        let _ = ray;
-        todo!("shape helper")
+        match &self.transform {
+            None => intersect_shape(&self.shape, ray),
+            Some(m) => intersect_shape(&self.shape, &m.inverse_ray(ray)),
+        }
     }
 
     /// The unit world normal at `ray.at(t)` on `part`: outward for solids;
-    /// for surfaces the geometric normal of a fixed orientation.
+    /// for surfaces the geometric normal of a fixed orientation
+    /// (`(b − a) × (c − a)` for triangles, the vertex order for polygons).
+    /// Never NaN or zero: edges, rims and apexes use their part's normal.
     pub fn normal(&self, ray: &Ray, t: f64, part: u8) -> Vec3 {
-        let _ = (ray, t, part);
-        todo!("shape helper")
+        match &self.transform {
+            None => shape_normal(&self.shape, ray, t, part),
+            Some(m) => {
+                let n = m.normal(shape_normal(&self.shape, &m.inverse_ray(ray), t, part));
+                if n.is_finite() { n } else { Vec3::Z }
+            }
+        }
+    }
+
+    /// Bytes of heap memory this primitive owns (a polygon's vertices and
+    /// triangles), for the nodes' memory budgets.
+    pub fn heap_bytes(&self) -> usize {
+        match &self.shape {
+            Shape::Polygon(p) => p.heap_bytes(),
+            _ => 0,
+        }
     }
 }
+
+impl Polygon {
+    /// Checks and triangulates a polygon given by its boundary in order.
+    ///
+    /// Exact repeats of consecutive vertices (and a closing copy of the
+    /// first) are dropped. Rejected: fewer than 3 distinct vertices, NaN or
+    /// infinite coordinates, zero area (twice the area ≤ 1e-12 × extent²),
+    /// non-planar vertices (farther than 1e-9 × extent from the plane through
+    /// the centroid with Newell's normal), and self-intersecting or touching
+    /// boundaries (checked pairwise for up to `SIMPLE_CHECK_LIMIT` vertices;
+    /// beyond that only when ear clipping gets stuck). The triangulation is
+    /// ear clipping in the projection that drops the normal's dominant axis;
+    /// every triangle keeps the polygon's orientation.
+    pub fn from_vertices(vertices: Vec<Vec3>) -> Result<Polygon, String> {
+        if let Some(i) = vertices.iter().position(|v| !v.is_finite()) {
+            return Err(format!("polygon vertex {i} is not finite: {}", vertices[i]));
+        }
+        let mut vs = vertices;
+        vs.dedup();
+        while vs.len() > 1 && vs.first() == vs.last() {
+            vs.pop();
+        }
+        let n = vs.len();
+        if n < 3 {
+            return Err(format!(
+                "a polygon needs at least 3 distinct vertices, it has {n}"
+            ));
+        }
+        if u32::try_from(n).is_err() {
+            return Err(format!("a polygon may have at most {} vertices", u32::MAX));
+        }
+        let bbox = Aabb::from_points(vs.iter().copied());
+        let extent = (bbox.max - bbox.min).max_element();
+        let centre = (bbox.min + bbox.max) * 0.5;
+        let newell = newell_normal(&vs, centre);
+        let twice_area = newell.length();
+        if !(twice_area > 1e-12 * extent * extent) {
+            return Err("the polygon has zero area (its vertices are collinear)".to_string());
+        }
+        let unit = newell / twice_area;
+        let centroid = vs.iter().fold(Vec3::ZERO, |s, v| s + (*v - centre)) / n as f64 + centre;
+        let tol = 1e-9 * extent;
+        for (i, v) in vs.iter().enumerate() {
+            let dist = (*v - centroid).dot(unit).abs();
+            if dist > tol {
+                return Err(format!(
+                    "the polygon is not planar: vertex {i} is {dist:e} from its plane \
+                     (tolerance {tol:e})"
+                ));
+            }
+        }
+        // Project by dropping the dominant axis; (ix, iy, drop) is a cyclic
+        // permutation, so the projection's signed area has the sign of
+        // `unit[drop]` and `orient` below is positive at convex corners.
+        let drop = unit.abs().max_position();
+        let (ix, iy) = ((drop + 1) % 3, (drop + 2) % 3);
+        let sign = if unit[drop] > 0.0 { 1.0 } else { -1.0 };
+        let pts: Vec<[f64; 2]> = vs
+            .iter()
+            .map(|v| {
+                let q = *v - centre;
+                [q[ix] * sign, q[iy]]
+            })
+            .collect();
+        if n <= SIMPLE_CHECK_LIMIT {
+            check_simple(&pts)?;
+        }
+        let triangles = ear_clip(&pts)?;
+        vs.shrink_to_fit();
+        Ok(Polygon {
+            vertices: vs,
+            triangles,
+        })
+    }
+
+    /// The unit normal of the polygon's orientation (Newell's method), the
+    /// same for every triangle of its triangulation.
+    pub fn normal(&self) -> Vec3 {
+        let origin = self.vertices.first().copied().unwrap_or(Vec3::ZERO);
+        newell_normal(&self.vertices, origin).normalize_or(Vec3::Z)
+    }
+
+    /// Bytes of heap memory owned by the vertex and triangle vectors.
+    pub fn heap_bytes(&self) -> usize {
+        self.vertices.capacity() * std::mem::size_of::<Vec3>()
+            + self.triangles.capacity() * std::mem::size_of::<[u32; 3]>()
+    }
+}
+
+/// Polygons with more vertices skip the O(n²) self-intersection check.
+const SIMPLE_CHECK_LIMIT: usize = 4096;
+
+/// Newell's normal: twice the vector area, summed relative to `origin` to
+/// keep the products small.
+fn newell_normal(vs: &[Vec3], origin: Vec3) -> Vec3 {
+    let mut n = Vec3::ZERO;
+    for (i, v) in vs.iter().enumerate() {
+        let w = vs[(i + 1) % vs.len()];
+        n += (*v - origin).cross(w - origin);
+    }
+    n
+}
+
+/// Twice the signed area of the 2D triangle `a b c` (positive when
+/// counter-clockwise).
+fn orient2(a: [f64; 2], b: [f64; 2], c: [f64; 2]) -> f64 {
+    (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+}
+
+/// True when `p` lies on the closed segment `a b`, given that the three are
+/// collinear.
+fn on_segment(a: [f64; 2], b: [f64; 2], p: [f64; 2]) -> bool {
+    p[0] >= a[0].min(b[0])
+        && p[0] <= a[0].max(b[0])
+        && p[1] >= a[1].min(b[1])
+        && p[1] <= a[1].max(b[1])
+}
+
+/// Rejects a boundary that crosses or touches itself, or doubles back on
+/// itself (a zero-width spike).
+fn check_simple(pts: &[[f64; 2]]) -> Result<(), String> {
+    let n = pts.len();
+    let err = |i: usize, j: usize| Err(format!("the polygon's edges {i} and {j} intersect"));
+    for i in 0..n {
+        let (a, b) = (pts[i], pts[(i + 1) % n]);
+        let c = pts[(i + 2) % n];
+        if orient2(a, b, c) == 0.0
+            && (b[0] - a[0]) * (c[0] - b[0]) + (b[1] - a[1]) * (c[1] - b[1]) < 0.0
+        {
+            return err(i, (i + 1) % n);
+        }
+        for j in i + 2..n {
+            if i == 0 && j == n - 1 {
+                continue; // adjacent through the closing edge
+            }
+            let (c, d) = (pts[j], pts[(j + 1) % n]);
+            let (o1, o2) = (orient2(a, b, c), orient2(a, b, d));
+            let (o3, o4) = (orient2(c, d, a), orient2(c, d, b));
+            let proper = o1 * o2 < 0.0 && o3 * o4 < 0.0;
+            let touch = (o1 == 0.0 && on_segment(a, b, c))
+                || (o2 == 0.0 && on_segment(a, b, d))
+                || (o3 == 0.0 && on_segment(c, d, a))
+                || (o4 == 0.0 && on_segment(c, d, b));
+            if proper || touch {
+                return err(i, j);
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Ear clipping of a simple polygon whose projection is counter-clockwise.
+/// Zero-area ears are never cut (a vertex between collinear neighbours waits
+/// until a neighbour is cut), so no degenerate triangle is produced.
+fn ear_clip(pts: &[[f64; 2]]) -> Result<Vec<[u32; 3]>, String> {
+    let n = pts.len();
+    let mut next: Vec<usize> = (0..n).map(|i| (i + 1) % n).collect();
+    let mut prev: Vec<usize> = (0..n).map(|i| (i + n - 1) % n).collect();
+    let mut tris = Vec::with_capacity(n - 2);
+    let mut remaining = n;
+    let mut i = 0;
+    let mut misses = 0;
+    let as_u32 = |k: usize| k as u32; // n ≤ u32::MAX, checked by the caller
+    while remaining > 3 {
+        let (p, q) = (prev[i], next[i]);
+        let is_ear = orient2(pts[p], pts[i], pts[q]) > 0.0 && {
+            let mut k = next[q];
+            let mut empty = true;
+            while k != p {
+                let x = pts[k];
+                if orient2(pts[p], pts[i], x) >= 0.0
+                    && orient2(pts[i], pts[q], x) >= 0.0
+                    && orient2(pts[q], pts[p], x) >= 0.0
+                {
+                    empty = false;
+                    break;
+                }
+                k = next[k];
+            }
+            empty
+        };
+        if is_ear {
+            tris.push([as_u32(p), as_u32(i), as_u32(q)]);
+            next[p] = q;
+            prev[q] = p;
+            remaining -= 1;
+            misses = 0;
+            i = p;
+        } else {
+            misses += 1;
+            if misses > remaining {
+                return Err("the polygon is self-intersecting or degenerate \
+                            (it cannot be triangulated)"
+                    .to_string());
+            }
+            i = q;
+        }
+    }
+    let (p, q) = (prev[i], next[i]);
+    if orient2(pts[p], pts[i], pts[q]) > 0.0 {
+        tris.push([as_u32(p), as_u32(i), as_u32(q)]);
+    }
+    tris.shrink_to_fit();
+    Ok(tris)
+}
+
+/// Folds `m` into the shape's parameters where that is exact (see
+/// `Primitive::new`); otherwise keeps the transform.
+fn bake(shape: Shape, m: &Affine) -> (Shape, Option<Affine>) {
+    match shape {
+        Shape::Box { min, max } if m.is_axis_scale() => {
+            let (p, q) = (m.point(min), m.point(max));
+            (
+                Shape::Box {
+                    min: p.min(q),
+                    max: p.max(q),
+                },
+                None,
+            )
+        }
+        Shape::Sphere { center, radius } => match m.similarity_scale() {
+            Some(s) => (
+                Shape::Sphere {
+                    center: m.point(center),
+                    radius: radius * s,
+                },
+                None,
+            ),
+            None => (Shape::Sphere { center, radius }, Some(*m)),
+        },
+        Shape::Cylinder {
+            base,
+            top,
+            radius,
+            capped,
+        } => match circular_scale(m, base, top) {
+            Some(s) => (
+                Shape::Cylinder {
+                    base: m.point(base),
+                    top: m.point(top),
+                    radius: radius * s,
+                    capped,
+                },
+                None,
+            ),
+            None => (
+                Shape::Cylinder {
+                    base,
+                    top,
+                    radius,
+                    capped,
+                },
+                Some(*m),
+            ),
+        },
+        Shape::Cone {
+            base,
+            base_radius,
+            top,
+            top_radius,
+            capped,
+        } => match circular_scale(m, base, top) {
+            Some(s) => (
+                Shape::Cone {
+                    base: m.point(base),
+                    base_radius: base_radius * s,
+                    top: m.point(top),
+                    top_radius: top_radius * s,
+                    capped,
+                },
+                None,
+            ),
+            None => (
+                Shape::Cone {
+                    base,
+                    base_radius,
+                    top,
+                    top_radius,
+                    capped,
+                },
+                Some(*m),
+            ),
+        },
+        Shape::Triangle { a, b, c } => (
+            Shape::Triangle {
+                a: m.point(a),
+                b: m.point(b),
+                c: m.point(c),
+            },
+            None,
+        ),
+        Shape::Polygon(p) => {
+            // An affine map keeps the triangulation valid (it maps triangles
+            // to triangles and preserves incidence).
+            let vertices = p.vertices.iter().map(|v| m.point(*v)).collect();
+            (
+                Shape::Polygon(Polygon {
+                    vertices,
+                    triangles: p.triangles,
+                }),
+                None,
+            )
+        }
+        other => (other, Some(*m)),
+    }
+}
+
+/// The radius scale when `m` maps every circle perpendicular to the axis
+/// `base → top` to a circle perpendicular to the image axis (a similarity,
+/// or e.g. scale (s, s, z) of a z-aligned cylinder), so that a cylinder or
+/// cone stays one. Relative tolerance 1e-14, as `Affine::similarity_scale`.
+fn circular_scale(m: &Affine, base: Vec3, top: Vec3) -> Option<f64> {
+    if let Some(s) = m.similarity_scale() {
+        return Some(s);
+    }
+    let (a, _) = unit_axis(base, top)?;
+    let (u, v) = a.any_orthonormal_pair();
+    let (mu, mv, ma) = (m.vector(u), m.vector(v), m.vector(a));
+    let (lu, lv, la) = (mu.length(), mv.length(), ma.length());
+    let tol = 1e-14;
+    let ok = lu > 0.0
+        && lu.is_finite()
+        && la > 0.0
+        && la.is_finite()
+        && (lu - lv).abs() <= tol * lu
+        && mu.dot(mv).abs() <= tol * lu * lv
+        && mu.dot(ma).abs() <= tol * lu * la
+        && mv.dot(ma).abs() <= tol * lv * la;
+    ok.then_some(lu)
+}
+
+/// The unit axis from `base` to `top` and its length; `None` when they
+/// coincide (or are not finite).
+#[inline]
+fn unit_axis(base: Vec3, top: Vec3) -> Option<(Vec3, f64)> {
+    let h = top - base;
+    let len = h.length();
+    // Division rather than multiplication by 1/len: an axis-aligned axis
+    // comes out exactly ±1, so cap planes meet box faces at identical t.
+    (len > 0.0 && len.is_finite()).then(|| (h / len, len))
+}
+
+/// The world bounds of `shape` placed by `m` (`None`: already in world
+/// space). Tight for spheres (ellipsoids), cylinders and cones: a disk of
+/// radius r around c with unit normal a, mapped by the linear part L,
+/// extends r·|row_i(L) − (row_i(L)·a)·a| along world axis i, which is
+/// r·sqrt(1 − a_i²) without a transform.
+fn world_bounds(shape: &Shape, m: Option<&Affine>) -> Aabb {
+    let lin = m.map_or(DMat3::IDENTITY, |m| m.linear);
+    let rows = [lin.row(0), lin.row(1), lin.row(2)];
+    let point = |p: Vec3| m.map_or(p, |m| m.point(p));
+    let disk = |c: Vec3, a: Vec3, r: f64| {
+        let ext = |row: Vec3| r * (row - a * row.dot(a)).length();
+        let e = Vec3::new(ext(rows[0]), ext(rows[1]), ext(rows[2]));
+        let c = point(c);
+        Aabb::new(c - e, c + e)
+    };
+    let b = match shape {
+        Shape::Sphere { center, radius } => {
+            let e = Vec3::new(rows[0].length(), rows[1].length(), rows[2].length()) * *radius;
+            let c = point(*center);
+            Aabb::new(c - e, c + e)
+        }
+        Shape::Box { min, max } => {
+            let b = Aabb::new(*min, *max);
+            match m {
+                _ if b.is_empty() => Aabb::EMPTY,
+                Some(m) => m.bounds(&b),
+                None => b,
+            }
+        }
+        Shape::Cylinder {
+            base, top, radius, ..
+        } => match unit_axis(*base, *top) {
+            Some((a, _)) => disk(*base, a, *radius).union(&disk(*top, a, *radius)),
+            None => Aabb::EMPTY,
+        },
+        Shape::Cone {
+            base,
+            base_radius,
+            top,
+            top_radius,
+            ..
+        } => match unit_axis(*base, *top) {
+            Some((a, _)) => disk(*base, a, *base_radius).union(&disk(*top, a, *top_radius)),
+            None => Aabb::EMPTY,
+        },
+        Shape::Triangle { a, b, c } => Aabb::from_points([*a, *b, *c].map(point)),
+        Shape::Polygon(p) => Aabb::from_points(p.vertices.iter().map(|v| point(*v))),
+    };
+    if b.is_empty() { Aabb::EMPTY } else { b }
+}
+
+#[inline]
+fn crossing(t: f64, part: u8) -> Crossing {
+    Crossing { t, part }
+}
+
+/// A solid's span, or `Miss` when it is empty, of zero length (tangent,
+/// `ROBUSTNESS.md` case 2) or not finite.
+#[inline]
+fn solid(enter: Crossing, exit: Crossing) -> PrimHits {
+    if enter.t < exit.t && enter.t.is_finite() && exit.t.is_finite() {
+        PrimHits::Solid { enter, exit }
+    } else {
+        PrimHits::Miss
+    }
+}
+
+/// A surface's crossings, finite ones only, sorted by `t`.
+#[inline]
+fn sheet(a: Option<Crossing>, b: Option<Crossing>) -> PrimHits {
+    let a = a.filter(|c| c.t.is_finite());
+    let b = b.filter(|c| c.t.is_finite());
+    match (a, b) {
+        (Some(x), Some(y)) => {
+            let hits = if y.t < x.t { [y, x] } else { [x, y] };
+            PrimHits::Sheet { hits, count: 2 }
+        }
+        (Some(x), None) | (None, Some(x)) => PrimHits::Sheet {
+            hits: [x, Crossing::default()],
+            count: 1,
+        },
+        (None, None) => PrimHits::Miss,
+    }
+}
+
+fn intersect_shape(shape: &Shape, ray: &Ray) -> PrimHits {
+    match shape {
+        Shape::Sphere { center, radius } => sphere_hits(ray, *center, *radius),
+        Shape::Box { min, max } => box_hits(ray, *min, *max),
+        Shape::Cylinder {
+            base,
+            top,
+            radius,
+            capped,
+        } => cylinder_hits(ray, *base, *top, *radius, *capped),
+        Shape::Cone {
+            base,
+            base_radius,
+            top,
+            top_radius,
+            capped,
+        } => {
+            if base_radius == top_radius {
+                cylinder_hits(ray, *base, *top, *base_radius, *capped)
+            } else {
+                cone_hits(ray, *base, *base_radius, *top, *top_radius, *capped)
+            }
+        }
+        Shape::Triangle { a, b, c } => match Shear::new(ray).and_then(|s| s.triangle(*a, *b, *c)) {
+            Some(t) => sheet(Some(crossing(t, 0)), None),
+            None => PrimHits::Miss,
+        },
+        Shape::Polygon(p) => polygon_hits(ray, p),
+    }
+}
+
+/// The roots of `|f + t·d|² = r²`: the ray (relative to a centre, or its
+/// components perpendicular to a cylinder's axis) against a sphere or an
+/// infinite cylinder.
+enum Roots {
+    /// Never strictly inside.
+    None,
+    /// Inside for every `t` (parallel to a cylinder's axis, within it).
+    All,
+    /// Inside over `(t0, t1)`, `t0 < t1`.
+    Two(f64, f64),
+}
+
+/// Robust quadratic (`ROBUSTNESS.md`, Ray Tracing Gems ch. 7, Haines,
+/// Günther and Akenine-Möller): with `a = d·d`, `b' = f·d`, `c = f·f − r²`,
+/// the discriminant `b'² − a·c` cancels catastrophically when the ray starts
+/// far away (case 1: a unit sphere at 1e8). Written instead as
+/// `a·(r² − |l|²)` with `l = f − (b'/a)·d` the closest approach, and
+/// `r² − |l|²` as `(r + |l|)(r − |l|)`, it keeps its accuracy; the roots are
+/// then `q/a` and `c/q` with `q = −(b' + sign(b')·sqrt(a·disc))`, which never
+/// subtracts nearly equal numbers. A zero discriminant is a tangent: no span
+/// (case 2). `a = 0` (a ray parallel to a cylinder's axis, case 3) is
+/// decided by whether the origin is inside, with no division.
+#[inline]
+fn circle_roots(f: Vec3, d: Vec3, r: f64) -> Roots {
+    let a = d.dot(d);
+    let c = f.dot(f) - r * r;
+    // The answer for a ray (nearly) parallel to the axis: the distance to
+    // the axis does not change, so the origin decides.
+    let parallel = if c < 0.0 { Roots::All } else { Roots::None };
+    if !(a > 0.0) {
+        return parallel;
+    }
+    let b = f.dot(d);
+    let l = f - d * (b / a);
+    let ll = l.length();
+    let disc = (r + ll) * (r - ll);
+    if disc.is_nan() {
+        // b/a overflowed: only for a subnormal perpendicular direction.
+        return parallel;
+    }
+    if !(disc > 0.0) {
+        return Roots::None;
+    }
+    let q = -(b + (a * disc).sqrt().copysign(b));
+    if q == 0.0 {
+        // a·disc underflowed with b = 0: a nearly parallel ray.
+        return parallel;
+    }
+    let (t0, t1) = (q / a, c / q);
+    let (t0, t1) = if t0 <= t1 { (t0, t1) } else { (t1, t0) };
+    if !(t0.is_finite() && t1.is_finite()) {
+        // Roots beyond f64's range: nearly parallel again.
+        return parallel;
+    }
+    if t0 < t1 {
+        Roots::Two(t0, t1)
+    } else {
+        Roots::None
+    }
+}
+
+fn sphere_hits(ray: &Ray, center: Vec3, radius: f64) -> PrimHits {
+    match circle_roots(ray.origin - center, ray.dir, radius) {
+        Roots::Two(t0, t1) => solid(crossing(t0, 0), crossing(t1, 0)),
+        Roots::None | Roots::All => PrimHits::Miss,
+    }
+}
+
+/// Slab test. A zero direction component (+0.0 or −0.0 alike, case 8) never
+/// divides: the ray is inside that slab or not by its origin (closed). The
+/// face `t` is `(plane − o)/d`, one correctly rounded division, so boxes
+/// that share a face plane meet a ray there at bit-identical `t` (cases
+/// 9-10). Ties in the entry maximum or exit minimum go to the lowest axis
+/// (strict comparisons in axis order, case 7), so an edge or corner hit
+/// gets one fixed face. A flat box (`min = max` on an axis) is never hit.
+#[inline]
+fn box_hits(ray: &Ray, min: Vec3, max: Vec3) -> PrimHits {
+    let mut enter = crossing(f64::NEG_INFINITY, 0);
+    let mut exit = crossing(f64::INFINITY, 1);
+    for axis in 0..3 {
+        let (o, d) = (ray.origin[axis], ray.dir[axis]);
+        let (lo, hi) = (min[axis], max[axis]);
+        if d == 0.0 {
+            // `lo < hi` too: a flat box (case 13) has no inside, even for a
+            // ray lying in its plane.
+            if !(lo <= o && o <= hi && lo < hi) {
+                return PrimHits::Miss;
+            }
+            continue;
+        }
+        let (t_lo, t_hi) = ((lo - o) / d, (hi - o) / d);
+        let part = 2 * axis as u8;
+        let (near, far) = if d > 0.0 {
+            (crossing(t_lo, part), crossing(t_hi, part + 1))
+        } else {
+            (crossing(t_hi, part + 1), crossing(t_lo, part))
+        };
+        if near.t > enter.t {
+            enter = near;
+        }
+        if far.t < exit.t {
+            exit = far;
+        }
+    }
+    solid(enter, exit)
+}
+
+/// The interval of `t` between the planes through `base` and `top`
+/// perpendicular to the unit axis `a`, closed, with the planes' parts.
+/// `None` when empty. A ray parallel to the planes (case 4) is between them
+/// or not by its origin alone: no `t = (h − o)/0`. The plane distances are
+/// `(plane point − o)·a`, so an axis-aligned cap meets a box face at the same
+/// `t` as the box's slab test (case 9).
+#[inline]
+fn cap_slab(
+    ray: &Ray,
+    base: Vec3,
+    top: Vec3,
+    a: Vec3,
+    base_part: u8,
+    top_part: u8,
+) -> Option<(Crossing, Crossing)> {
+    let da = ray.dir.dot(a);
+    let sb = (base - ray.origin).dot(a);
+    let st = (top - ray.origin).dot(a);
+    if da == 0.0 {
+        return (sb <= 0.0 && 0.0 <= st).then_some((
+            crossing(f64::NEG_INFINITY, base_part),
+            crossing(f64::INFINITY, top_part),
+        ));
+    }
+    let (tb, tt) = (crossing(sb / da, base_part), crossing(st / da, top_part));
+    Some(if da > 0.0 { (tb, tt) } else { (tt, tb) })
+}
+
+/// Combines the interval inside the infinite side surface with the cap
+/// slab. Solid: their intersection, a cap winning a tie with the side (the
+/// rim, case 5: either normal is right, one is chosen). Surface: the side's
+/// finite ends that lie within the slab; an apex crossing (part 3) is kept
+/// when `apex_on_end` (a pointed cone's apex lies on a cap plane, where
+/// rounding must not decide).
+#[inline]
+fn side_and_caps(
+    side: (Crossing, Crossing),
+    slab: (Crossing, Crossing),
+    capped: bool,
+    apex_on_end: bool,
+) -> PrimHits {
+    if capped {
+        let enter = if slab.0.t >= side.0.t { slab.0 } else { side.0 };
+        let exit = if slab.1.t <= side.1.t { slab.1 } else { side.1 };
+        solid(enter, exit)
+    } else {
+        let within = |c: Crossing| {
+            c.t.is_finite()
+                && ((slab.0.t <= c.t && c.t <= slab.1.t) || (c.part == APEX && apex_on_end))
+        };
+        sheet(
+            Some(side.0).filter(|c| within(*c)),
+            Some(side.1).filter(|c| within(*c)),
+        )
+    }
+}
+
+/// A cylinder with a general axis. The side is `circle_roots` on the
+/// components perpendicular to the axis, so `a = 0` (a ray parallel to the
+/// axis, case 3) is handled there and a nearly parallel ray gives huge
+/// roots that the caps clip: the span is continuous in the direction.
+fn cylinder_hits(ray: &Ray, base: Vec3, top: Vec3, radius: f64, capped: bool) -> PrimHits {
+    let Some((a, _)) = unit_axis(base, top) else {
+        return PrimHits::Miss;
+    };
+    let Some(slab) = cap_slab(ray, base, top, a, BASE_CAP, TOP_CAP) else {
+        return PrimHits::Miss;
+    };
+    let f = ray.origin - base;
+    let f_perp = f - a * f.dot(a);
+    let d_perp = ray.dir - a * ray.dir.dot(a);
+    let side = match circle_roots(f_perp, d_perp, radius) {
+        Roots::None => return PrimHits::Miss,
+        Roots::All => (
+            crossing(f64::NEG_INFINITY, SIDE),
+            crossing(f64::INFINITY, SIDE),
+        ),
+        Roots::Two(t0, t1) => (crossing(t0, SIDE), crossing(t1, SIDE)),
+    };
+    side_and_caps(side, slab, capped, false)
+}
+
+/// The two roots of `A t² + 2B t + C` with `disc = B² − AC > 0`, sorted,
+/// without cancellation (`q = −(B + sign(B)·sqrt(disc))`, roots `q/A`,
+/// `C/q`).
+#[inline]
+fn quadratic_roots(qa: f64, qb: f64, qc: f64, disc: f64) -> (f64, f64) {
+    let q = -(qb + disc.sqrt().copysign(qb));
+    let (t0, t1) = (q / qa, qc / q);
+    if t0 <= t1 { (t0, t1) } else { (t1, t0) }
+}
+
+/// A cone or frustum (`base_radius != top_radius`). With `f = o − base`,
+/// `s = (f + t·d)·a` the axial coordinate and `ρ(s) = rb + k·s` the signed
+/// radius (`k = (rt − rb)/h`), the double cone is `|p⊥|² = ρ²`:
+/// `A t² + 2B t + C = 0` with `g = ρ` at the origin and `m = k·(d·a)`,
+/// `A = |d⊥|² − m²`, `B = f⊥·d⊥ − g·m`, `C = |f⊥|² − g²`.
+///
+/// The real nappe is where `ρ > 0`; the mirror nappe (`ρ < 0`, beyond the
+/// apex) is rejected by that sign, not by the slab alone (case 6). `A < 0`
+/// (steeper than the surface) is inside outside the roots, one piece per
+/// nappe; `A = 0` (parallel to a generator, case 6) is linear with no
+/// division by `A`; a double root with `A < 0` is the apex (part 3).
+fn cone_hits(ray: &Ray, base: Vec3, rb: f64, top: Vec3, rt: f64, capped: bool) -> PrimHits {
+    let Some((a, len)) = unit_axis(base, top) else {
+        return PrimHits::Miss;
+    };
+    // A zero-radius cap is the apex itself.
+    let base_part = if rb == 0.0 { APEX } else { BASE_CAP };
+    let top_part = if rt == 0.0 { APEX } else { TOP_CAP };
+    let Some(slab) = cap_slab(ray, base, top, a, base_part, top_part) else {
+        return PrimHits::Miss;
+    };
+    let k = (rt - rb) / len;
+    let (o, d) = (ray.origin, ray.dir);
+    let f = o - base;
+    let (fa, da) = (f.dot(a), d.dot(a));
+    let f_perp = f - a * fa;
+    let d_perp = d - a * da;
+    let g = rb + k * fa;
+    let m = k * da;
+    let qa = d_perp.dot(d_perp) - m * m;
+    let qb = f_perp.dot(d_perp) - g * m;
+    let qc = f_perp.dot(f_perp) - g * g;
+    let (below, above) = (
+        crossing(f64::NEG_INFINITY, SIDE),
+        crossing(f64::INFINITY, SIDE),
+    );
+    let side = if qa == 0.0 {
+        // Parallel to a generator: inside where 2B·t + C ≤ 0, a half-line
+        // in the nappe the ray runs into (ρ's sign at its infinite end is
+        // m's sign there). B = 0 is the generator itself: grazing.
+        if qb == 0.0 || m == 0.0 {
+            return PrimHits::Miss;
+        }
+        let t = crossing(-qc / (2.0 * qb), SIDE);
+        match (qb > 0.0, m > 0.0) {
+            (true, false) => (below, t),
+            (false, true) => (t, above),
+            _ => return PrimHits::Miss,
+        }
+    } else if qa > 0.0 {
+        // One bounded interval, in one nappe.
+        let disc = qb * qb - qa * qc;
+        if !(disc > 0.0) {
+            return PrimHits::Miss;
+        }
+        let (t0, t1) = quadratic_roots(qa, qb, qc, disc);
+        // In exact arithmetic the slab already excludes the mirror nappe;
+        // this keeps rounding near a pointed end from admitting it.
+        let mid = 0.5 * t0 + 0.5 * t1;
+        if !(g + m * mid > 0.0) {
+            return PrimHits::Miss;
+        }
+        (crossing(t0, SIDE), crossing(t1, SIDE))
+    } else if qa < 0.0 {
+        // Inside before t0 (one nappe) and after t1 (the other); m ≠ 0
+        // here, and its sign says which end lies in the real nappe.
+        let disc = qb * qb - qa * qc;
+        if disc > 0.0 {
+            let (t0, t1) = quadratic_roots(qa, qb, qc, disc);
+            if m > 0.0 {
+                (crossing(t1, SIDE), above)
+            } else {
+                (below, crossing(t0, SIDE))
+            }
+        } else {
+            // A double root (or one rounded below zero): through the apex.
+            let t = crossing(-qb / qa, APEX);
+            if m > 0.0 { (t, above) } else { (below, t) }
+        }
+    } else {
+        return PrimHits::Miss; // NaN
+    };
+    side_and_caps(side, slab, capped, rb == 0.0 || rt == 0.0)
+}
+
+/// The ray of the watertight triangle test (Woop, Benthin and Wald, JCGT
+/// 2013), computed once per ray: the axes permuted so that the dominant
+/// direction component is z (x and y swapped when it is negative, to keep
+/// the winding), and the shear that makes the direction +z. Vertices shared
+/// by triangles are transformed identically, so their edges agree.
+struct Shear {
+    o: Vec3,
+    kx: usize,
+    ky: usize,
+    kz: usize,
+    sx: f64,
+    sy: f64,
+    sz: f64,
+}
+
+impl Shear {
+    #[inline]
+    fn new(ray: &Ray) -> Option<Shear> {
+        let d = ray.dir;
+        let kz = d.abs().max_position();
+        let dz = d[kz];
+        if !(dz.abs() > 0.0) {
+            return None;
+        }
+        let (mut kx, mut ky) = ((kz + 1) % 3, (kz + 2) % 3);
+        if dz < 0.0 {
+            std::mem::swap(&mut kx, &mut ky);
+        }
+        Some(Shear {
+            o: ray.origin,
+            kx,
+            ky,
+            kz,
+            sx: d[kx] / dz,
+            sy: d[ky] / dz,
+            sz: 1.0 / dz,
+        })
+    }
+
+    /// A vertex in ray space: x, y across the ray (the ray is the origin),
+    /// z scaled so that `t` is a weighted sum of the three.
+    #[inline]
+    fn project(&self, p: Vec3) -> [f64; 3] {
+        let q = p - self.o;
+        let z = q[self.kz];
+        [
+            q[self.kx] - self.sx * z,
+            q[self.ky] - self.sy * z,
+            self.sz * z,
+        ]
+    }
+
+    /// The ray's `t` at triangle `a b c`, if it hits.
+    ///
+    /// Edge functions `U, V, W` (the 2D cross products of the projected
+    /// vertices) have exact signs: a non-zero rounded `x·y − z·w` has the
+    /// sign of the exact value (rounding is monotonic), and when it rounds
+    /// to zero the sign is recomputed exactly from the products' rounding
+    /// errors (the paper's fallback to higher precision). Mixed signs miss;
+    /// all zero is a ray in the triangle's plane (or a degenerate triangle),
+    /// which misses. An edge function exactly zero (the ray through an edge
+    /// or vertex) is decided by the top-left rule on the edge directed
+    /// counter-clockwise in the projection: own it iff `dy < 0`, or `dy = 0`
+    /// and `dx > 0`. That is the inside test of the point nudged by
+    /// (+x, then +y), so of two triangles sharing an edge (directed
+    /// oppositely) exactly one owns it, and of a fan around a vertex exactly
+    /// one owns the vertex (`ROBUSTNESS.md` case 29, Embree #188).
+    #[inline]
+    fn triangle(&self, a: Vec3, b: Vec3, c: Vec3) -> Option<f64> {
+        let (pa, pb, pc) = (self.project(a), self.project(b), self.project(c));
+        let u = edge_function(pc, pb);
+        let v = edge_function(pa, pc);
+        let w = edge_function(pb, pa);
+        let pos = u > 0.0 || v > 0.0 || w > 0.0;
+        let neg = u < 0.0 || v < 0.0 || w < 0.0;
+        if pos == neg {
+            return None;
+        }
+        // `pos`: a→c→b is counter-clockwise in the projection and the edges
+        // of U, V, W run c→b, a→c, b→a; otherwise they run the other way.
+        let owns = |value: f64, from: [f64; 3], to: [f64; 3]| {
+            value != 0.0
+                || if pos {
+                    top_left(from, to)
+                } else {
+                    top_left(to, from)
+                }
+        };
+        if !(owns(u, pc, pb) && owns(v, pa, pc) && owns(w, pb, pa)) {
+            return None;
+        }
+        let det = u + v + w; // same-signed terms: no cancellation, non-zero
+        Some((u * pa[2] + v * pb[2] + w * pc[2]) / det)
+    }
+}
+
+/// `p.x·q.y − p.y·q.x` with an exact sign (see `Shear::triangle`). When the
+/// rounded difference is zero the rounded products are equal, so the exact
+/// value is the difference of their rounding errors (exact by fused
+/// multiply-add); that is only off for products under- or overflowing.
+#[inline]
+fn edge_function(p: [f64; 3], q: [f64; 3]) -> f64 {
+    let (x, y) = (p[0] * q[1], p[1] * q[0]);
+    let e = x - y;
+    if e != 0.0 {
+        return e;
+    }
+    let ex = p[0].mul_add(q[1], -x);
+    let ey = p[1].mul_add(q[0], -y);
+    ex - ey
+}
+
+/// The top-left rule for the projected edge `from → to` of a
+/// counter-clockwise triangle.
+#[inline]
+fn top_left(from: [f64; 3], to: [f64; 3]) -> bool {
+    let (dx, dy) = (to[0] - from[0], to[1] - from[1]);
+    dy < 0.0 || (dy == 0.0 && dx > 0.0)
+}
+
+/// A polygon is planar, so it is crossed at most once: the first of its
+/// triangles that the ray hits (the tie rule makes a ray through an inner
+/// diagonal hit exactly one of the two triangles beside it).
+fn polygon_hits(ray: &Ray, p: &Polygon) -> PrimHits {
+    let Some(shear) = Shear::new(ray) else {
+        return PrimHits::Miss;
+    };
+    for tri in &p.triangles {
+        let [i, j, k] = tri.map(|i| i as usize);
+        let (Some(a), Some(b), Some(c)) = (p.vertices.get(i), p.vertices.get(j), p.vertices.get(k))
+        else {
+            continue;
+        };
+        if let Some(t) = shear.triangle(*a, *b, *c) {
+            return sheet(Some(crossing(t, 0)), None);
+        }
+    }
+    PrimHits::Miss
+}
+
+/// The object-space unit normal (see `Primitive::normal`). Points are taken
+/// as `(o − centre) + t·d` rather than `ray.at(t) − centre`, which would
+/// cancel far from the origin.
+fn shape_normal(shape: &Shape, ray: &Ray, t: f64, part: u8) -> Vec3 {
+    match shape {
+        Shape::Sphere { center, .. } => {
+            ((ray.origin - *center) + ray.dir * t).normalize_or(Vec3::Z)
+        }
+        Shape::Box { .. } => {
+            let mut n = Vec3::ZERO;
+            let axis = usize::from(part / 2).min(2);
+            n[axis] = if part.is_multiple_of(2) { -1.0 } else { 1.0 };
+            n
+        }
+        Shape::Cylinder { base, top, .. } => cylinder_normal(ray, t, part, *base, *top),
+        Shape::Cone {
+            base,
+            base_radius,
+            top,
+            top_radius,
+            ..
+        } => {
+            if base_radius == top_radius {
+                return cylinder_normal(ray, t, part, *base, *top);
+            }
+            let Some((a, len)) = unit_axis(*base, *top) else {
+                return Vec3::Z;
+            };
+            let k = (top_radius - base_radius) / len;
+            // The apex lies beyond the end whose radius is smaller; its
+            // normal is the axis pointing from the body to the apex.
+            let apex = if k < 0.0 { a } else { -a };
+            match part {
+                BASE_CAP => -a,
+                TOP_CAP => a,
+                APEX => apex,
+                _ => {
+                    let f = (ray.origin - *base) + ray.dir * t;
+                    let radial = (f - a * f.dot(a)).normalize_or_zero();
+                    if radial == Vec3::ZERO {
+                        return apex; // on the axis: only the apex
+                    }
+                    // The gradient of |p⊥| − ρ(s): radial minus the slope
+                    // along the axis; its length is sqrt(1 + k²) > 0.
+                    (radial - a * k).normalize_or(apex)
+                }
+            }
+        }
+        Shape::Triangle { a, b, c } => (*b - *a).cross(*c - *a).normalize_or(Vec3::Z),
+        Shape::Polygon(p) => p.normal(),
+    }
+}
+
+fn cylinder_normal(ray: &Ray, t: f64, part: u8, base: Vec3, top: Vec3) -> Vec3 {
+    let Some((a, _)) = unit_axis(base, top) else {
+        return Vec3::Z;
+    };
+    match part {
+        BASE_CAP => -a,
+        TOP_CAP => a,
+        _ => {
+            let f = (ray.origin - base) + ray.dir * t;
+            (f - a * f.dot(a)).normalize_or(a.any_orthonormal_vector())
+        }
+    }
+}
+
+#[cfg(test)]
+#[path = "shape_tests.rs"]
+mod tests;
