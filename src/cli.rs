@@ -10,6 +10,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
 
 use crate::error::{Error, Result};
+use crate::cells::{CellOptions, CellStructure, SegmentChoice};
 use crate::render::{self, Accel, RenderOptions, RenderStats};
 use crate::report::{self, stats::num, ImageMetrics};
 use crate::scene::{self, Scene};
@@ -26,6 +27,52 @@ pub struct Cli {
 pub enum Command {
     /// Render a scene to an image file.
     Render(RenderArgs),
+    /// Show the paper's subdivision of a scene: counts, memory, and an overlay picture.
+    Inspect(InspectArgs),
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BspArg {
+    /// Fewest splits among a fixed sample of 16 candidate segments (default: near n log n).
+    Sampled,
+    /// The paper's choice: the segment splitting the fewest others (quadratic).
+    FewestSplits,
+}
+
+impl From<BspArg> for SegmentChoice {
+    fn from(b: BspArg) -> Self {
+        match b {
+            BspArg::Sampled => SegmentChoice::Sampled,
+            BspArg::FewestSplits => SegmentChoice::FewestSplits,
+        }
+    }
+}
+
+#[derive(clap::Args, Debug)]
+pub struct InspectArgs {
+    /// Scene file: .ron, .json or .nff.
+    pub scene: PathBuf,
+    /// Draw the super cells over a render into this PNG.
+    #[arg(long)]
+    pub overlay: Option<PathBuf>,
+    /// Image width (default: the scene camera's).
+    #[arg(long)]
+    pub width: Option<u32>,
+    /// Image height (default: the scene camera's).
+    #[arg(long)]
+    pub height: Option<u32>,
+    /// How the screen-plane BSP chooses its splitting segments.
+    #[arg(long, value_enum, default_value_t = BspArg::Sampled)]
+    pub bsp: BspArg,
+    /// Also write the counts as JSON to this file.
+    #[arg(long)]
+    pub stats: Option<PathBuf>,
+    /// Host threads for the overlay's render.
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// No progress bar.
+    #[arg(short, long)]
+    pub quiet: bool,
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -67,6 +114,9 @@ pub struct RenderArgs {
     /// Host threads for single-node work (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
+    /// How the screen-plane BSP chooses its splitting segments (cells only).
+    #[arg(long, value_enum, default_value_t = BspArg::Sampled)]
+    pub bsp: BspArg,
     /// No progress bar and no summary.
     #[arg(short, long)]
     pub quiet: bool,
@@ -76,6 +126,7 @@ pub struct RenderArgs {
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Render(a) => run_render(a),
+        Command::Inspect(a) => run_inspect(a),
     }
 }
 
@@ -88,6 +139,7 @@ struct RenderJob {
     accel: Accel,
     reference: Option<(PathBuf, Vec<[f32; 3]>)>,
     stats: Option<PathBuf>,
+    bsp: SegmentChoice,
     quiet: bool,
 }
 
@@ -120,15 +172,7 @@ fn prepare_render(a: RenderArgs) -> Result<RenderJob> {
     if a.spp == 0 || a.spp > 65536 {
         return Err(Error::Usage(format!("--spp must be in 1..=65536, got {}", a.spp)));
     }
-    let (mut scene, warnings) = scene::load::load_scene_with_warnings(&a.scene)?;
-    if !a.quiet {
-        for w in warnings {
-            eprintln!("hypercast: warning: {w}");
-        }
-    }
-    let width = a.width.unwrap_or(scene.camera.width);
-    let height = a.height.unwrap_or(scene.camera.height);
-    scene::load::check_resolution(width, height).map_err(|m| Error::Usage(format!("--width/--height: {m}")))?;
+    let (mut scene, width, height) = load_for_run(&a.scene, a.width, a.height, a.quiet)?;
     if let Some(d) = a.max_depth {
         if d > scene::MAX_DEPTH_LIMIT {
             return Err(Error::Usage(format!("--max-depth must be at most {}, got {d}", scene::MAX_DEPTH_LIMIT)));
@@ -148,10 +192,7 @@ fn prepare_render(a: RenderArgs) -> Result<RenderJob> {
             Some((p.clone(), px))
         }
     };
-    let threads = a.threads.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1));
-    if threads == 0 {
-        return Err(Error::Usage("--threads must be at least 1".into()));
-    }
+    let threads = host_threads(a.threads)?;
     Ok(RenderJob {
         scene_path: a.scene,
         scene,
@@ -163,8 +204,32 @@ fn prepare_render(a: RenderArgs) -> Result<RenderJob> {
         },
         reference,
         stats: a.stats,
+        bsp: a.bsp.into(),
         quiet: a.quiet,
     })
+}
+
+fn host_threads(t: Option<usize>) -> Result<usize> {
+    let threads = t.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1));
+    if threads == 0 {
+        return Err(Error::Usage("--threads must be at least 1".into()));
+    }
+    Ok(threads)
+}
+
+/// Loads a scene, prints its warnings unless quiet, and applies a
+/// resolution override.
+fn load_for_run(path: &Path, width: Option<u32>, height: Option<u32>, quiet: bool) -> Result<(Scene, u32, u32)> {
+    let (scene, warnings) = scene::load::load_scene_with_warnings(path)?;
+    if !quiet {
+        for w in warnings {
+            eprintln!("hypercast: warning: {w}");
+        }
+    }
+    let width = width.unwrap_or(scene.camera.width);
+    let height = height.unwrap_or(scene.camera.height);
+    scene::load::check_resolution(width, height).map_err(|m| Error::Usage(format!("--width/--height: {m}")))?;
+    Ok((scene, width, height))
 }
 
 /// A progress bar over `total` units on a terminal, hidden otherwise.
@@ -186,11 +251,14 @@ fn run_render(a: RenderArgs) -> Result<()> {
     let job = prepare_render(a)?;
     let pb = progress_bar(job.opts.height as u64, job.quiet, "render");
     let progress = |rows: u32| pb.inc(rows as u64);
-    let (film, stats) = match job.accel {
-        Accel::Roth => render::render_roth(&job.scene, &job.opts, &progress),
+    let (film, stats, cs) = match job.accel {
+        Accel::Roth => {
+            let (film, stats) = render::render_roth(&job.scene, &job.opts, &progress);
+            (film, stats, None)
+        }
         Accel::Cells => {
-            let (film, stats, _cs) = render::render_cells(&job.scene, &job.opts, Default::default(), &progress);
-            (film, stats)
+            let (film, stats, cs) = render::render_cells(&job.scene, &job.opts, CellOptions { choice: job.bsp }, &progress);
+            (film, stats, Some(cs))
         }
     };
     pb.finish_and_clear();
@@ -201,7 +269,11 @@ fn run_render(a: RenderArgs) -> Result<()> {
         .as_ref()
         .map(|(_, r)| report::compare(&report::image_io::to_display(&linear), r));
     if let Some(p) = &job.stats {
-        report::stats::write_json(p, &stats_json(&job, &stats, metrics.as_ref()))?;
+        let mut v = stats_json(&job, &stats, metrics.as_ref());
+        if let Some(cs) = &cs {
+            report::stats::extend(&mut v, structure_json(cs));
+        }
+        report::stats::write_json(p, &v)?;
     }
     if !job.quiet {
         eprintln!(
@@ -242,6 +314,8 @@ fn stats_json(job: &RenderJob, s: &RenderStats, m: Option<&ImageMetrics>) -> ser
         "rays": rays,
         "intersection_tests": s.counters.intersection_tests,
         "mailbox_hits": s.counters.mailbox_hits,
+        "cells_visited": s.counters.cells_visited,
+        "subtree_evaluations": s.counters.subtree_evaluations,
         "pixels_traced": s.pixels_traced,
         "pixels_background": s.pixels_background,
         "primitives": job.scene.primitives.len(),
@@ -250,4 +324,74 @@ fn stats_json(job: &RenderJob, s: &RenderStats, m: Option<&ImageMetrics>) -> ser
         "max_error": m.map(|m| num(m.max_error)),
         "reference": job.reference.as_ref().map(|(p, _)| p.display().to_string()),
     })
+}
+
+/// The keys describing a cell structure (`--stats`, `inspect --stats`).
+fn structure_json(cs: &CellStructure) -> Vec<(&'static str, serde_json::Value)> {
+    let s = &cs.stats;
+    vec![
+        ("cells", json!(s.cells)),
+        ("super_cells", json!(s.super_cells)),
+        ("empty_cells", json!(s.empty_cells)),
+        ("primitives_per_cell", json!({"mean": s.prims_per_cell_mean, "max": s.prims_per_cell_max})),
+        ("subtree_nodes_per_cell", json!({"mean": s.subtree_nodes_mean, "max": s.subtree_nodes_max, "whole_tree": s.tree_nodes})),
+        ("distinct_subtrees", json!(s.distinct_subtrees)),
+        ("culled_primitives", json!(s.culled_primitives)),
+        ("bsp_splits", json!(s.bsp_splits)),
+        ("build_seconds", json!(s.build_seconds)),
+        ("structure_bytes", json!(s.bytes)),
+    ]
+}
+
+fn run_inspect(a: InspectArgs) -> Result<()> {
+    if let Some(o) = &a.overlay {
+        report::image_io::OutputFormat::for_path(o)?;
+        check_writable_dir(o)?;
+    }
+    if let Some(p) = &a.stats {
+        check_writable_dir(p)?;
+    }
+    let threads = host_threads(a.threads)?;
+    let (scene, width, height) = load_for_run(&a.scene, a.width, a.height, a.quiet)?;
+    let cs = CellStructure::build(&scene, width, height, CellOptions { choice: a.bsp.into() });
+    let s = &cs.stats;
+    let front = cs.region(crate::cells::Region::Front);
+    let back = cs.region(crate::cells::Region::Back);
+    println!("scene               {}", a.scene.display());
+    println!("primitives          {} ({} culled: empty minimal box)", scene.primitives.len(), s.culled_primitives);
+    println!("csg tree nodes      {}", s.tree_nodes);
+    println!("super cells         {} (front {}, behind the eye plane {})", s.super_cells, front.partition.leaves.len(), back.partition.leaves.len());
+    println!("cells               {} ({} empty)", s.cells, s.empty_cells);
+    println!("primitives per cell mean {:.2}, max {}", s.prims_per_cell_mean, s.prims_per_cell_max);
+    println!("subtree nodes/cell  mean {:.2}, max {} (whole tree {})", s.subtree_nodes_mean, s.subtree_nodes_max, s.tree_nodes);
+    println!("distinct subtrees   {}", s.distinct_subtrees);
+    println!("bsp segment splits  {}", s.bsp_splits);
+    println!("structure bytes     {} ({:.2} MiB)", s.bytes, s.bytes as f64 / (1024.0 * 1024.0));
+    println!("build time          {:.4} s", s.build_seconds);
+    if let Some(p) = &a.stats {
+        let mut v = json!({"scene": a.scene.display().to_string(), "width": width, "height": height, "primitives": scene.primitives.len()});
+        report::stats::extend(&mut v, structure_json(&cs));
+        report::stats::write_json(p, &v)?;
+    }
+    if let Some(o) = &a.overlay {
+        let opts = RenderOptions { width, height, spp: 1, threads };
+        let pb = progress_bar(height as u64, a.quiet, "overlay");
+        let progress = |rows: u32| pb.inc(rows as u64);
+        let (film, _) = render::render_with(
+            &scene,
+            &opts,
+            || crate::cells::CellTracer::new(&cs, &scene),
+            |job| crate::cells::CellTracer::primary_is_background(&cs, &job.ray),
+            &progress,
+        );
+        pb.finish_and_clear();
+        let mut img = film.to_linear();
+        let cam = crate::trace::CameraFrame::new(&scene, width, height);
+        report::overlay::draw_super_cells(&mut img, &cam, &cs);
+        report::write_image(o, width, height, &img)?;
+        if !a.quiet {
+            eprintln!("hypercast: wrote {}", o.display());
+        }
+    }
+    Ok(())
 }

@@ -59,7 +59,7 @@ impl Tracer for RothTracer<'_> {
     fn counters(&self) -> crate::render::TraceCounters {
         crate::render::TraceCounters {
             intersection_tests: self.intersection_tests,
-            mailbox_hits: 0,
+            ..Default::default()
         }
     }
 }

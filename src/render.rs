@@ -45,6 +45,10 @@ pub struct RenderOptions {
 pub struct TraceCounters {
     pub intersection_tests: u64,
     pub mailbox_hits: u64,
+    /// Cells entered by rays (cells accelerator only).
+    pub cells_visited: u64,
+    /// Cell subtrees evaluated (cells accelerator only).
+    pub subtree_evaluations: u64,
 }
 
 /// Statistics of a single-node render.
@@ -169,6 +173,8 @@ where
         stats.pixels_background += s.pixels_background;
         stats.counters.intersection_tests += c.intersection_tests;
         stats.counters.mailbox_hits += c.mailbox_hits;
+        stats.counters.cells_visited += c.cells_visited;
+        stats.counters.subtree_evaluations += c.subtree_evaluations;
     }
     stats.wall_seconds = start.elapsed().as_secs_f64();
     (film, stats)

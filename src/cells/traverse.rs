@@ -192,8 +192,9 @@ pub struct CellTracer<'a> {
     last_ray: Option<Ray>,
     pub counters: TraceCounters,
     pub eval_counts: EvalCounts,
-    /// Cells visited.
-    pub cells_visited: u64,
+    /// The span list of the last (ray, subtree) evaluated.
+    spans: SpanList,
+    last_eval: Option<(u64, u32)>,
 }
 
 impl<'a> CellTracer<'a> {
@@ -213,36 +214,45 @@ impl<'a> CellTracer<'a> {
             last_ray: None,
             counters: TraceCounters::default(),
             eval_counts: EvalCounts::default(),
-            cells_visited: 0,
+            spans: SpanList::default(),
+            last_eval: None,
         }
     }
 
     /// The first boundary of cell `c`'s subtree with `t_min < t`, `t_in ≤ t`
     /// and `t < t_end`.
     fn in_cell(&mut self, c: CellRef, ray: &Ray, t_min: f64, t_in: f64, t_end: f64) -> Option<Hit> {
-        self.cells_visited += 1;
+        self.counters.cells_visited += 1;
         let cell = self.cs.region(c.region).cells[c.cell as usize];
         if cell.subtree == NO_SUBTREE || t_end < t_in {
             return None;
         }
-        let prims = &self.scene.primitives;
-        let mailboxes = &mut self.mailboxes;
-        let counters = &mut self.counters;
-        let id = self.ray_id;
-        let spans: &SpanList = self.eval.evaluate(&self.cs.subtrees, NodeId(cell.subtree), ray, true, &mut self.eval_counts, |p| {
-            let mb = &mut mailboxes[p.index()];
-            if mb.ray == id {
-                counters.mailbox_hits += 1;
-            } else {
-                counters.intersection_tests += 1;
-                *mb = Mailbox {
-                    ray: id,
-                    hits: prims[p.index()].intersect(ray),
-                };
-            }
-            mb.hits
-        });
-        spans.first_between(t_min.max(prev_float(t_in)), t_end).map(Hit::from)
+        // Neighbouring cells often keep the same primitives, and so share
+        // one subtree (they are memoised by primitive set): the span list
+        // of the same ray is then already known.
+        if self.last_eval != Some((self.ray_id, cell.subtree)) {
+            let prims = &self.scene.primitives;
+            let mailboxes = &mut self.mailboxes;
+            let counters = &mut self.counters;
+            let id = self.ray_id;
+            let spans: &SpanList = self.eval.evaluate(&self.cs.subtrees, NodeId(cell.subtree), ray, true, &mut self.eval_counts, |p| {
+                let mb = &mut mailboxes[p.index()];
+                if mb.ray == id {
+                    counters.mailbox_hits += 1;
+                } else {
+                    counters.intersection_tests += 1;
+                    *mb = Mailbox {
+                        ray: id,
+                        hits: prims[p.index()].intersect(ray),
+                    };
+                }
+                mb.hits
+            });
+            self.spans.clone_from(spans);
+            self.counters.subtree_evaluations += 1;
+            self.last_eval = Some((self.ray_id, cell.subtree));
+        }
+        self.spans.first_between(t_min.max(prev_float(t_in)), t_end).map(Hit::from)
     }
 }
 

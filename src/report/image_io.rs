@@ -57,6 +57,32 @@ pub fn to_srgb8(linear: &[[f32; 3]]) -> Vec<u8> {
 /// Writes linear pixels to `path` atomically in the format of its extension.
 pub fn write_image(path: &Path, width: u32, height: u32, linear: &[[f32; 3]]) -> Result<()> {
     let format = OutputFormat::for_path(path)?;
+    write_atomically(path, |file| {
+        let mut w = BufWriter::new(file);
+        let result = match format {
+            OutputFormat::Png | OutputFormat::Ppm => {
+                let img = RgbImage::from_raw(width, height, to_srgb8(linear)).ok_or("image size mismatch")?;
+                let f = if format == OutputFormat::Png { ImageFormat::Png } else { ImageFormat::Pnm };
+                img.write_to(&mut w, f)
+            }
+            OutputFormat::Exr => {
+                let data: Vec<f32> = linear.iter().flatten().copied().collect();
+                let img = Rgb32FImage::from_raw(width, height, data).ok_or("image size mismatch")?;
+                img.write_to(&mut w, ImageFormat::OpenExr)
+            }
+        };
+        result.map_err(|e| e.to_string())?;
+        std::io::Write::flush(&mut w).map_err(|e| e.to_string())
+    })
+}
+
+/// Writes `path` through a temporary file in the same folder and a rename,
+/// the commit point: until it, `path` is untouched, and a failure leaves
+/// nothing behind (the temporary file is removed when dropped).
+pub fn write_atomically<F>(path: &Path, fill: F) -> Result<()>
+where
+    F: FnOnce(&mut std::fs::File) -> std::result::Result<(), String>,
+{
     let err = |message: String| Error::Write {
         path: path.to_path_buf(),
         message,
@@ -70,25 +96,14 @@ pub fn write_image(path: &Path, width: u32, height: u32, linear: &[[f32; 3]]) ->
         .suffix(".tmp")
         .tempfile_in(dir)
         .map_err(|e| err(e.to_string()))?;
-    {
-        let mut w = BufWriter::new(tmp.as_file_mut());
-        let result = match format {
-            OutputFormat::Png | OutputFormat::Ppm => {
-                let img = RgbImage::from_raw(width, height, to_srgb8(linear)).ok_or_else(|| err("image size mismatch".into()))?;
-                let f = if format == OutputFormat::Png { ImageFormat::Png } else { ImageFormat::Pnm };
-                img.write_to(&mut w, f)
-            }
-            OutputFormat::Exr => {
-                let data: Vec<f32> = linear.iter().flatten().copied().collect();
-                let img = Rgb32FImage::from_raw(width, height, data).ok_or_else(|| err("image size mismatch".into()))?;
-                img.write_to(&mut w, ImageFormat::OpenExr)
-            }
-        };
-        result.map_err(|e| err(e.to_string()))?;
-        std::io::Write::flush(&mut w).map_err(|e| err(e.to_string()))?;
-    }
+    fill(tmp.as_file_mut()).map_err(err)?;
     tmp.as_file().sync_all().map_err(|e| err(e.to_string()))?;
-    // The rename is the commit point: until it, `path` is untouched.
+    // Temporary files are created private; an output file is not.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let _ = tmp.as_file().set_permissions(std::fs::Permissions::from_mode(0o644));
+    }
     tmp.persist(path).map_err(|e| err(e.error.to_string()))?;
     Ok(())
 }

@@ -4,6 +4,7 @@
 //! never traces.
 
 pub mod image_io;
+pub mod overlay;
 pub mod stats;
 
 pub use image_io::{compare, read_display_image, write_image, ImageMetrics};

@@ -5,26 +5,14 @@ use std::path::Path;
 
 use serde_json::{json, Map, Value};
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 
 /// Writes `value` to `path` atomically (temporary file, then rename).
 pub fn write_json(path: &Path, value: &Value) -> Result<()> {
-    let err = |message: String| Error::Write {
-        path: path.to_path_buf(),
-        message,
-    };
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    let tmp = tempfile::Builder::new()
-        .prefix(".hypercast-")
-        .suffix(".tmp")
-        .tempfile_in(dir)
-        .map_err(|e| err(e.to_string()))?;
-    serde_json::to_writer_pretty(tmp.as_file(), value).map_err(|e| err(e.to_string()))?;
-    tmp.persist(path).map_err(|e| err(e.error.to_string()))?;
-    Ok(())
+    super::image_io::write_atomically(path, |f| {
+        serde_json::to_writer_pretty(&mut *f, value).map_err(|e| e.to_string())?;
+        std::io::Write::write_all(f, b"\n").map_err(|e| e.to_string())
+    })
 }
 
 /// A JSON number, or null when not finite (JSON has no infinity).
