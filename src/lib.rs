@@ -14,3 +14,5 @@ pub mod render;
 pub mod report;
 pub mod cells;
 pub mod cli;
+pub mod r#gen;
+pub mod machine;
