@@ -137,7 +137,7 @@ struct RenderJob {
     output: PathBuf,
     opts: RenderOptions,
     accel: Accel,
-    reference: Option<(PathBuf, Vec<[f32; 3]>)>,
+    reference: Option<(PathBuf, report::DisplayImage)>,
     stats: Option<PathBuf>,
     bsp: SegmentChoice,
     quiet: bool,
@@ -182,14 +182,16 @@ fn prepare_render(a: RenderArgs) -> Result<RenderJob> {
     let reference = match &a.reference {
         None => None,
         Some(p) => {
-            let (w, h, px) = report::read_display_image(p)?;
-            if (w, h) != (width, height) {
+            let img = report::read_display_image(p)?;
+            if (img.width, img.height) != (width, height) {
                 return Err(Error::Usage(format!(
-                    "{}: reference is {w}x{h}, the render is {width}x{height}",
-                    p.display()
+                    "{}: reference is {}x{}, the render is {width}x{height}",
+                    p.display(),
+                    img.width,
+                    img.height
                 )));
             }
-            Some((p.clone(), px))
+            Some((p.clone(), img))
         }
     };
     let threads = host_threads(a.threads)?;
@@ -267,7 +269,7 @@ fn run_render(a: RenderArgs) -> Result<()> {
     let metrics = job
         .reference
         .as_ref()
-        .map(|(_, r)| report::compare(&report::image_io::to_display(&linear), r));
+        .map(|(_, r)| report::compare(&r.comparable(&linear), &r.pixels));
     if let Some(p) = &job.stats {
         let mut v = stats_json(&job, &stats, metrics.as_ref());
         if let Some(cs) = &cs {

@@ -126,7 +126,7 @@ pub fn parse_size(s: &str) -> std::result::Result<u64, String> {
         other => return Err(format!("bad memory size {s:?}: unknown unit {other:?} (use KiB, MiB or GiB)")),
     };
     let bytes = value * scale;
-    if !bytes.is_finite() || bytes < 1.0 || bytes > 1e15 {
+    if !(1.0..=1e15).contains(&bytes) {
         return Err(format!("bad memory size {s:?}: must be between 1 byte and 1 PB"));
     }
     Ok(bytes.round() as u64)

@@ -108,9 +108,28 @@ where
     Ok(())
 }
 
+/// A reference image as display values (sRGB-encoded, [0, 1]).
+#[derive(Clone, Debug)]
+pub struct DisplayImage {
+    pub width: u32,
+    pub height: u32,
+    pub pixels: Vec<[f32; 3]>,
+    /// True for 8-bit files (PNG, PPM): a render is compared after the same
+    /// rounding to 8 bits, so an identical render has zero error.
+    pub eight_bit: bool,
+}
+
+impl DisplayImage {
+    /// Display values of linear pixels, rounded as this image was.
+    pub fn comparable(&self, linear: &[[f32; 3]]) -> Vec<[f32; 3]> {
+        let d = to_display(linear);
+        if self.eight_bit { d.into_iter().map(|p| p.map(|c| (c * 255.0).round() / 255.0)).collect() } else { d }
+    }
+}
+
 /// Reads an image as display values (sRGB-encoded, [0, 1]); EXR files are
 /// linear and are encoded the same way as rendered pixels.
-pub fn read_display_image(path: &Path) -> Result<(u32, u32, Vec<[f32; 3]>)> {
+pub fn read_display_image(path: &Path) -> Result<DisplayImage> {
     let img = image::open(path).map_err(|e| match e {
         image::ImageError::IoError(source) => Error::Read {
             path: path.to_path_buf(),
@@ -125,7 +144,12 @@ pub fn read_display_image(path: &Path) -> Result<(u32, u32, Vec<[f32; 3]>)> {
     } else {
         img.to_rgb8().pixels().map(|p| p.0.map(|c| c as f32 / 255.0)).collect()
     };
-    Ok((w, h, px))
+    Ok(DisplayImage {
+        width: w,
+        height: h,
+        pixels: px,
+        eight_bit: !linear_file,
+    })
 }
 
 /// Error of an image against a reference, on display values in [0, 1].

@@ -55,9 +55,9 @@ impl Film {
     /// Adds another band's sums (which must lie inside this one).
     pub fn merge(&mut self, o: &Film) {
         let off = (o.y0 - self.y0) as usize * self.width as usize;
-        for (i, s) in o.sums.iter().enumerate() {
-            for k in 0..3 {
-                self.sums[off + i][k] = self.sums[off + i][k].wrapping_add(s[k]);
+        for (dst, src) in self.sums[off..].iter_mut().zip(&o.sums) {
+            for (d, s) in dst.iter_mut().zip(src) {
+                *d = d.wrapping_add(*s);
             }
         }
     }

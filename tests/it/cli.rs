@@ -1,0 +1,363 @@
+//! The real binary (`CLI.md`): exit codes, one-line errors without panics,
+//! nothing written on failure, images and statistics on success.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use crate::util;
+
+const BIN: &str = env!("CARGO_BIN_EXE_hypercast");
+
+/// Runs `hypercast` in `dir` (a fresh temporary folder, so "no file left"
+/// is checkable), with the environment that would make a panic talk.
+fn run(dir: &Path, args: &[&str]) -> Output {
+    Command::new(BIN)
+        .args(args)
+        .current_dir(dir)
+        .env("RUST_BACKTRACE", "1")
+        .output()
+        .expect("the binary runs")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn files_in(dir: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    v.sort();
+    v
+}
+
+fn path_str(p: &Path) -> &str {
+    p.to_str().expect("UTF-8 path")
+}
+
+/// What every refusal must look like: exit 2, one line on stderr naming
+/// the problem, no panic, nothing written. Returns the problems found.
+fn check_refusal(dir: &Path, args: &[&str], expected: &str) -> Vec<String> {
+    let o = run(dir, args);
+    let err = stderr(&o);
+    let mut problems = Vec::new();
+    if o.status.code() != Some(2) {
+        problems.push(format!("exit status {:?}, want 2", o.status.code()));
+    }
+    if err.trim_end_matches('\n').contains('\n') || err.is_empty() {
+        problems.push("stderr is not exactly one line".into());
+    }
+    if !err.contains(expected) {
+        problems.push(format!("stderr lacks {expected:?}"));
+    }
+    if err.contains("panicked") || err.contains("RUST_BACKTRACE") {
+        problems.push("a panic".into());
+    }
+    let left = files_in(dir);
+    if !left.is_empty() {
+        problems.push(format!("files left behind: {left:?}"));
+    }
+    if problems.is_empty() {
+        return problems;
+    }
+    vec![format!(
+        "hypercast {}: {}\n  stderr: {err}",
+        args.join(" "),
+        problems.join("; ")
+    )]
+}
+
+/// Every file of `tests/data/bad/` is refused as `EXPECTED.tsv` says, and
+/// the table and the folder list the same files.
+#[test]
+fn bad_scenes_are_refused_with_one_line_and_no_output() {
+    let bad = util::repo("tests/data/bad");
+    let table = std::fs::read_to_string(bad.join("EXPECTED.tsv")).expect("EXPECTED.tsv");
+    let expected: Vec<(&str, &str)> = table
+        .lines()
+        .filter(|l| !l.trim().is_empty() && !l.starts_with('#'))
+        .map(|l| {
+            l.split_once('\t')
+                .unwrap_or_else(|| panic!("EXPECTED.tsv line without a tab: {l:?}"))
+        })
+        .collect();
+    let mut problems = Vec::new();
+    let mut files = 0;
+    for path in files_in(&bad) {
+        let name = path.file_name().unwrap().to_str().unwrap();
+        if name == "EXPECTED.tsv" {
+            continue;
+        }
+        files += 1;
+        let Some((_, want)) = expected.iter().find(|(f, _)| *f == name) else {
+            problems.push(format!("{name}: not in EXPECTED.tsv"));
+            continue;
+        };
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path().join("out.png");
+        problems.extend(check_refusal(
+            tmp.path(),
+            &["render", path_str(&path), "-o", path_str(&out)],
+            want,
+        ));
+    }
+    for (f, _) in &expected {
+        if !bad.join(f).exists() {
+            problems.push(format!("EXPECTED.tsv names {f}, which does not exist"));
+        }
+    }
+    assert!(files >= 20, "only {files} bad scenes");
+    assert!(
+        problems.is_empty(),
+        "{} problems:\n{}",
+        problems.len(),
+        problems.join("\n")
+    );
+}
+
+#[test]
+fn bad_options_are_refused_before_rendering() {
+    let sphere = util::repo("scenes/small/sphere.ron");
+    let sphere = path_str(&sphere);
+    let mut problems = Vec::new();
+    let cases: [(&[&str], &str); 5] = [
+        (&["-o", "x.jpg"], "x.jpg"),
+        (&["-o", "out.png", "--width", "0"], "0x48"),
+        (&["-o", "out.png", "--height", "0"], "64x0"),
+        (&["-o", "out.png", "--spp", "0"], "--spp"),
+        (&["-o", "no/such/folder/out.png"], "no/such/folder"),
+    ];
+    for (extra, want) in cases {
+        let tmp = tempfile::tempdir().unwrap();
+        let mut args = vec!["render", sphere];
+        args.extend_from_slice(extra);
+        problems.extend(check_refusal(tmp.path(), &args, want));
+    }
+    // The output is checked before the scene is even read: a bad scene with
+    // a bad output name reports the output.
+    let tmp = tempfile::tempdir().unwrap();
+    let bad = util::repo("tests/data/bad/negative_radius.ron");
+    problems.extend(check_refusal(
+        tmp.path(),
+        &["render", path_str(&bad), "-o", "x.jpg"],
+        "x.jpg",
+    ));
+    // A scene that does not exist is named.
+    let tmp = tempfile::tempdir().unwrap();
+    problems.extend(check_refusal(
+        tmp.path(),
+        &["render", "missing.ron", "-o", "out.png"],
+        "missing.ron",
+    ));
+    assert!(
+        problems.is_empty(),
+        "{} problems:\n{}",
+        problems.len(),
+        problems.join("\n")
+    );
+}
+
+/// Renders `scenes/small/sphere.ron` at 40x30 into `dir/name`.
+fn render_ok(dir: &Path, name: &str, extra: &[&str]) -> Output {
+    let sphere = util::repo("scenes/small/sphere.ron");
+    let mut args = vec![
+        "render",
+        path_str(&sphere),
+        "-o",
+        name,
+        "--width",
+        "40",
+        "--height",
+        "30",
+        "--threads",
+        "2",
+    ];
+    args.extend_from_slice(extra);
+    let o = run(dir, &args);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "hypercast {}: {}",
+        args.join(" "),
+        stderr(&o)
+    );
+    o
+}
+
+/// Good renders, both accelerators and all three formats: exit 0, a
+/// decodable image of the asked size, the same pixels as the library's
+/// render (PNG: the 8-bit sRGB encoding; EXR: linear, exact).
+#[test]
+fn good_renders_write_decodable_images_of_the_right_size() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = hypercast::scene::load_scene(&util::repo("scenes/small/sphere.ron")).unwrap();
+    let (film, _) = util::roth(&scene, 40, 30);
+    let linear = film.to_linear();
+    let srgb8 = hypercast::report::image_io::to_srgb8(&linear);
+    for accel in ["roth", "cells"] {
+        for ext in ["png", "ppm", "exr"] {
+            let name = format!("{accel}.{ext}");
+            render_ok(tmp.path(), &name, &["--accel", accel, "--quiet"]);
+            let img = image::open(tmp.path().join(&name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+            assert_eq!((img.width(), img.height()), (40, 30), "{name}");
+            if ext == "exr" {
+                let px: Vec<f32> = img.to_rgb32f().into_raw();
+                let want: Vec<f32> = linear.iter().flatten().copied().collect();
+                assert!(
+                    px == want,
+                    "{name}: linear pixels differ from the library's render"
+                );
+            } else {
+                assert!(
+                    img.to_rgb8().into_raw() == srgb8,
+                    "{name}: pixels differ from the library's render"
+                );
+            }
+        }
+    }
+    // Written atomically: no temporary file remains.
+    let left: Vec<PathBuf> = files_in(tmp.path());
+    assert_eq!(left.len(), 6, "{left:?}");
+}
+
+#[test]
+fn stats_json_has_the_keys_of_cli_md() {
+    let tmp = tempfile::tempdir().unwrap();
+    for accel in ["roth", "cells"] {
+        let json = format!("{accel}.json");
+        render_ok(
+            tmp.path(),
+            "out.png",
+            &["--accel", accel, "--stats", &json, "--quiet"],
+        );
+        let text = std::fs::read_to_string(tmp.path().join(&json)).unwrap();
+        let v: serde_json::Value =
+            serde_json::from_str(&text).unwrap_or_else(|e| panic!("{json}: {e}\n{text}"));
+        let scene = v["scene"]
+            .as_str()
+            .unwrap_or_else(|| panic!("scene: {text}"));
+        assert!(scene.ends_with("sphere.ron"), "{scene}");
+        assert_eq!(v["width"], 40);
+        assert_eq!(v["height"], 30);
+        assert_eq!(v["accel"], accel);
+        for kind in ["primary", "shadow", "reflected", "refracted"] {
+            assert!(v["rays"][kind].is_u64(), "rays.{kind} in {text}");
+        }
+        for key in ["intersection_tests", "pixels_traced", "pixels_background"] {
+            assert!(v[key].is_u64(), "{key} in {text}");
+        }
+        let wall = v["wall_seconds"]
+            .as_f64()
+            .unwrap_or_else(|| panic!("wall_seconds in {text}"));
+        assert!(wall >= 0.0);
+        let (traced, bg) = (
+            v["pixels_traced"].as_u64().unwrap(),
+            v["pixels_background"].as_u64().unwrap(),
+        );
+        assert_eq!(traced + bg, 40 * 30, "every pixel is traced or background");
+        assert!(v["rays"]["primary"].as_u64().unwrap() >= traced);
+        assert!(
+            v["rays"]["shadow"].as_u64().unwrap() > 0,
+            "the sphere is lit"
+        );
+        assert_eq!(v["rays"]["reflected"], 0, "nothing reflects in sphere.ron");
+        assert!(v["intersection_tests"].as_u64().unwrap() > 0);
+    }
+}
+
+/// Parses `rmse X  psnr Y dB ...` from stdout.
+fn metrics(o: &Output) -> (f64, String) {
+    let out = String::from_utf8_lossy(&o.stdout).into_owned();
+    let words: Vec<&str> = out.split_whitespace().collect();
+    let after = |k: &str| {
+        let i = words
+            .iter()
+            .position(|w| *w == k)
+            .unwrap_or_else(|| panic!("no {k} in {out:?}"));
+        words[i + 1].to_string()
+    };
+    (after("rmse").parse().unwrap(), after("psnr"))
+}
+
+/// `--reference` against a linear EXR of the same render: no error at all.
+#[test]
+fn reference_exr_of_the_same_render_has_zero_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    render_ok(tmp.path(), "ref.exr", &["--accel", "roth", "--quiet"]);
+    for accel in ["roth", "cells"] {
+        let o = render_ok(
+            tmp.path(),
+            "again.png",
+            &["--accel", accel, "--reference", "ref.exr", "--quiet"],
+        );
+        let (rmse, psnr) = metrics(&o);
+        assert_eq!(rmse, 0.0, "{accel}");
+        assert_eq!(psnr, "inf", "{accel}");
+    }
+    // And it can tell a different picture: the same scene at other max_depth
+    // is identical (no mirrors), so use another scene of the same size.
+    let shadow = util::repo("scenes/small/shadow.ron");
+    let args = [
+        "render",
+        path_str(&shadow),
+        "-o",
+        "s.png",
+        "--width",
+        "40",
+        "--height",
+        "30",
+        "--reference",
+        "ref.exr",
+        "-q",
+    ];
+    let o = run(tmp.path(), &args);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(metrics(&o).0 > 0.01);
+    // A reference of another size is bad input.
+    let tmp2 = tempfile::tempdir().unwrap();
+    let r = tmp.path().join("ref.exr");
+    let sphere = util::repo("scenes/small/sphere.ron");
+    let args = [
+        "render",
+        path_str(&sphere),
+        "-o",
+        "o.png",
+        "--reference",
+        path_str(&r),
+    ];
+    let problems = check_refusal(tmp2.path(), &args, "ref.exr");
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+/// `--reference` against the PNG the same command just wrote must report
+/// no error: the written image is what the reference is compared with.
+#[test]
+fn reference_png_of_the_same_render_has_zero_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    render_ok(tmp.path(), "ref.png", &["--accel", "roth", "--quiet"]);
+    let o = render_ok(
+        tmp.path(),
+        "again.png",
+        &["--accel", "roth", "--reference", "ref.png", "--quiet"],
+    );
+    let (rmse, psnr) = metrics(&o);
+    assert!(rmse == 0.0 && psnr == "inf", "rmse {rmse}, psnr {psnr}");
+}
+
+#[test]
+fn quiet_success_prints_nothing_on_stderr() {
+    let tmp = tempfile::tempdir().unwrap();
+    for accel in ["roth", "cells"] {
+        let o = render_ok(tmp.path(), "q.png", &["--accel", accel, "--quiet"]);
+        assert!(o.stderr.is_empty(), "{accel}: {}", stderr(&o));
+        assert!(
+            o.stdout.is_empty(),
+            "{accel}: {}",
+            String::from_utf8_lossy(&o.stdout)
+        );
+    }
+    // Without --quiet a summary is printed (so the check above can fail).
+    let o = render_ok(tmp.path(), "loud.png", &["--accel", "roth"]);
+    assert!(!o.stderr.is_empty());
+}
