@@ -3,6 +3,8 @@
 
 #[path = "it/bundled.rs"]
 mod bundled;
+#[path = "it/cells.rs"]
+mod cells;
 #[path = "it/cli.rs"]
 mod cli;
 #[path = "it/csg_props.rs"]
