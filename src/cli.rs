@@ -9,15 +9,19 @@ use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
 
-use crate::error::{Error, Result};
 use crate::cells::{CellOptions, CellStructure, SegmentChoice};
+use crate::error::{Error, Result};
 use crate::render::{self, Accel, RenderOptions, RenderStats};
-use crate::report::{self, stats::num, ImageMetrics};
+use crate::report::{self, ImageMetrics, stats::num};
 use crate::scene::{self, Scene};
 use crate::trace::RayKind;
 
 #[derive(Parser, Debug)]
-#[command(name = "hypercast", version, about = "CSG ray tracing with Priol-Arnaldi-Bouatouch space subdivision on an emulated hypercube")]
+#[command(
+    name = "hypercast",
+    version,
+    about = "CSG ray tracing with Priol-Arnaldi-Bouatouch space subdivision on an emulated hypercube"
+)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
@@ -144,7 +148,10 @@ struct RenderJob {
 }
 
 fn default_output(scene: &Path) -> PathBuf {
-    let stem = scene.file_stem().map(|s| s.to_os_string()).unwrap_or_else(|| "render".into());
+    let stem = scene
+        .file_stem()
+        .map(|s| s.to_os_string())
+        .unwrap_or_else(|| "render".into());
     let mut p = PathBuf::from(stem);
     p.set_extension("png");
     p
@@ -156,7 +163,11 @@ fn check_writable_dir(path: &Path) -> Result<()> {
         _ => Path::new("."),
     };
     if !dir.is_dir() {
-        return Err(Error::Usage(format!("{}: the folder {} does not exist", path.display(), dir.display())));
+        return Err(Error::Usage(format!(
+            "{}: the folder {} does not exist",
+            path.display(),
+            dir.display()
+        )));
     }
     Ok(())
 }
@@ -170,12 +181,18 @@ fn prepare_render(a: RenderArgs) -> Result<RenderJob> {
         check_writable_dir(s)?;
     }
     if a.spp == 0 || a.spp > 65536 {
-        return Err(Error::Usage(format!("--spp must be in 1..=65536, got {}", a.spp)));
+        return Err(Error::Usage(format!(
+            "--spp must be in 1..=65536, got {}",
+            a.spp
+        )));
     }
     let (mut scene, width, height) = load_for_run(&a.scene, a.width, a.height, a.quiet)?;
     if let Some(d) = a.max_depth {
         if d > scene::MAX_DEPTH_LIMIT {
-            return Err(Error::Usage(format!("--max-depth must be at most {}, got {d}", scene::MAX_DEPTH_LIMIT)));
+            return Err(Error::Usage(format!(
+                "--max-depth must be at most {}, got {d}",
+                scene::MAX_DEPTH_LIMIT
+            )));
         }
         scene.max_depth = d;
     }
@@ -199,7 +216,12 @@ fn prepare_render(a: RenderArgs) -> Result<RenderJob> {
         scene_path: a.scene,
         scene,
         output,
-        opts: RenderOptions { width, height, spp: a.spp, threads },
+        opts: RenderOptions {
+            width,
+            height,
+            spp: a.spp,
+            threads,
+        },
         accel: match a.accel {
             AccelArg::Cells => Accel::Cells,
             AccelArg::Roth => Accel::Roth,
@@ -212,7 +234,11 @@ fn prepare_render(a: RenderArgs) -> Result<RenderJob> {
 }
 
 fn host_threads(t: Option<usize>) -> Result<usize> {
-    let threads = t.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1));
+    let threads = t.unwrap_or_else(|| {
+        std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+    });
     if threads == 0 {
         return Err(Error::Usage("--threads must be at least 1".into()));
     }
@@ -221,7 +247,12 @@ fn host_threads(t: Option<usize>) -> Result<usize> {
 
 /// Loads a scene, prints its warnings unless quiet, and applies a
 /// resolution override.
-fn load_for_run(path: &Path, width: Option<u32>, height: Option<u32>, quiet: bool) -> Result<(Scene, u32, u32)> {
+fn load_for_run(
+    path: &Path,
+    width: Option<u32>,
+    height: Option<u32>,
+    quiet: bool,
+) -> Result<(Scene, u32, u32)> {
     let (scene, warnings) = scene::load::load_scene_with_warnings(path)?;
     if !quiet {
         for w in warnings {
@@ -230,7 +261,8 @@ fn load_for_run(path: &Path, width: Option<u32>, height: Option<u32>, quiet: boo
     }
     let width = width.unwrap_or(scene.camera.width);
     let height = height.unwrap_or(scene.camera.height);
-    scene::load::check_resolution(width, height).map_err(|m| Error::Usage(format!("--width/--height: {m}")))?;
+    scene::load::check_resolution(width, height)
+        .map_err(|m| Error::Usage(format!("--width/--height: {m}")))?;
     Ok((scene, width, height))
 }
 
@@ -241,9 +273,11 @@ pub fn progress_bar(total: u64, quiet: bool, what: &str) -> ProgressBar {
     }
     let pb = ProgressBar::new(total);
     pb.set_style(
-        ProgressStyle::with_template("{prefix} [{bar:40}] {percent:>3}% {elapsed_precise} eta {eta}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
+        ProgressStyle::with_template(
+            "{prefix} [{bar:40}] {percent:>3}% {elapsed_precise} eta {eta}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
     );
     pb.set_prefix(what.to_string());
     pb
@@ -259,7 +293,12 @@ fn run_render(a: RenderArgs) -> Result<()> {
             (film, stats, None)
         }
         Accel::Cells => {
-            let (film, stats, cs) = render::render_cells(&job.scene, &job.opts, CellOptions { choice: job.bsp }, &progress);
+            let (film, stats, cs) = render::render_cells(
+                &job.scene,
+                &job.opts,
+                CellOptions { choice: job.bsp },
+                &progress,
+            );
             (film, stats, Some(cs))
         }
     };
@@ -301,7 +340,10 @@ fn run_render(a: RenderArgs) -> Result<()> {
 }
 
 fn stats_json(job: &RenderJob, s: &RenderStats, m: Option<&ImageMetrics>) -> serde_json::Value {
-    let rays: serde_json::Map<String, serde_json::Value> = RayKind::ALL.iter().map(|k| (k.name().to_string(), json!(s.rays.get(*k)))).collect();
+    let rays: serde_json::Map<String, serde_json::Value> = RayKind::ALL
+        .iter()
+        .map(|k| (k.name().to_string(), json!(s.rays.get(*k))))
+        .collect();
     json!({
         "scene": job.scene_path.display().to_string(),
         "width": job.opts.width,
@@ -335,8 +377,14 @@ fn structure_json(cs: &CellStructure) -> Vec<(&'static str, serde_json::Value)> 
         ("cells", json!(s.cells)),
         ("super_cells", json!(s.super_cells)),
         ("empty_cells", json!(s.empty_cells)),
-        ("primitives_per_cell", json!({"mean": s.prims_per_cell_mean, "max": s.prims_per_cell_max})),
-        ("subtree_nodes_per_cell", json!({"mean": s.subtree_nodes_mean, "max": s.subtree_nodes_max, "whole_tree": s.tree_nodes})),
+        (
+            "primitives_per_cell",
+            json!({"mean": s.prims_per_cell_mean, "max": s.prims_per_cell_max}),
+        ),
+        (
+            "subtree_nodes_per_cell",
+            json!({"mean": s.subtree_nodes_mean, "max": s.subtree_nodes_max, "whole_tree": s.tree_nodes}),
+        ),
         ("distinct_subtrees", json!(s.distinct_subtrees)),
         ("culled_primitives", json!(s.culled_primitives)),
         ("bsp_splits", json!(s.bsp_splits)),
@@ -355,20 +403,46 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
     }
     let threads = host_threads(a.threads)?;
     let (scene, width, height) = load_for_run(&a.scene, a.width, a.height, a.quiet)?;
-    let cs = CellStructure::build(&scene, width, height, CellOptions { choice: a.bsp.into() });
+    let cs = CellStructure::build(
+        &scene,
+        width,
+        height,
+        CellOptions {
+            choice: a.bsp.into(),
+        },
+    );
     let s = &cs.stats;
     let front = cs.region(crate::cells::Region::Front);
     let back = cs.region(crate::cells::Region::Back);
     println!("scene               {}", a.scene.display());
-    println!("primitives          {} ({} culled: empty minimal box)", scene.primitives.len(), s.culled_primitives);
+    println!(
+        "primitives          {} ({} culled: empty minimal box)",
+        scene.primitives.len(),
+        s.culled_primitives
+    );
     println!("csg tree nodes      {}", s.tree_nodes);
-    println!("super cells         {} (front {}, behind the eye plane {})", s.super_cells, front.partition.leaves.len(), back.partition.leaves.len());
+    println!(
+        "super cells         {} (front {}, behind the eye plane {})",
+        s.super_cells,
+        front.partition.leaves.len(),
+        back.partition.leaves.len()
+    );
     println!("cells               {} ({} empty)", s.cells, s.empty_cells);
-    println!("primitives per cell mean {:.2}, max {}", s.prims_per_cell_mean, s.prims_per_cell_max);
-    println!("subtree nodes/cell  mean {:.2}, max {} (whole tree {})", s.subtree_nodes_mean, s.subtree_nodes_max, s.tree_nodes);
+    println!(
+        "primitives per cell mean {:.2}, max {}",
+        s.prims_per_cell_mean, s.prims_per_cell_max
+    );
+    println!(
+        "subtree nodes/cell  mean {:.2}, max {} (whole tree {})",
+        s.subtree_nodes_mean, s.subtree_nodes_max, s.tree_nodes
+    );
     println!("distinct subtrees   {}", s.distinct_subtrees);
     println!("bsp segment splits  {}", s.bsp_splits);
-    println!("structure bytes     {} ({:.2} MiB)", s.bytes, s.bytes as f64 / (1024.0 * 1024.0));
+    println!(
+        "structure bytes     {} ({:.2} MiB)",
+        s.bytes,
+        s.bytes as f64 / (1024.0 * 1024.0)
+    );
     println!("build time          {:.4} s", s.build_seconds);
     if let Some(p) = &a.stats {
         let mut v = json!({"scene": a.scene.display().to_string(), "width": width, "height": height, "primitives": scene.primitives.len()});
@@ -376,7 +450,12 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
         report::stats::write_json(p, &v)?;
     }
     if let Some(o) = &a.overlay {
-        let opts = RenderOptions { width, height, spp: 1, threads };
+        let opts = RenderOptions {
+            width,
+            height,
+            spp: 1,
+            threads,
+        };
         let pb = progress_bar(height as u64, a.quiet, "overlay");
         let progress = |rows: u32| pb.inc(rows as u64);
         let (film, _) = render::render_with(

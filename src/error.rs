@@ -49,11 +49,17 @@ impl Error {
     pub fn exit_code(&self) -> i32 {
         match self {
             Error::Render(_) | Error::Write { .. } => 1,
-            Error::Read { .. } | Error::Syntax { .. } | Error::Invalid { .. } | Error::Usage(_) => 2,
+            Error::Read { .. } | Error::Syntax { .. } | Error::Invalid { .. } | Error::Usage(_) => {
+                2
+            }
         }
     }
 
-    pub fn invalid(file: impl Into<PathBuf>, path: impl Into<String>, message: impl Into<String>) -> Error {
+    pub fn invalid(
+        file: impl Into<PathBuf>,
+        path: impl Into<String>,
+        message: impl Into<String>,
+    ) -> Error {
         Error::Invalid {
             file: file.into(),
             path: path.into(),

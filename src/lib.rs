@@ -8,11 +8,11 @@ pub mod geom;
 pub mod scene;
 
 pub use error::{Error, Result};
-pub mod trace;
-pub mod reference;
-pub mod render;
-pub mod report;
 pub mod cells;
 pub mod cli;
 pub mod r#gen;
 pub mod machine;
+pub mod reference;
+pub mod render;
+pub mod report;
+pub mod trace;

@@ -48,11 +48,13 @@ impl Tracer for RothTracer<'_> {
         let root = self.scene.tree.root?;
         let prims = &self.scene.primitives;
         let tests = &mut self.intersection_tests;
-        let spans = self.eval.evaluate(&self.scene.tree, root, ray, true, &mut self.counts, |p| {
-            *tests += 1;
-            let h: PrimHits = prims[p.index()].intersect(ray);
-            h
-        });
+        let spans = self
+            .eval
+            .evaluate(&self.scene.tree, root, ray, true, &mut self.counts, |p| {
+                *tests += 1;
+                let h: PrimHits = prims[p.index()].intersect(ray);
+                h
+            });
         spans.first_between(t_min, t_max).map(Hit::from)
     }
 

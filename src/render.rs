@@ -102,7 +102,13 @@ const BAND_ROWS: u32 = 4;
 /// one per thread; `skip_primary` says which primary rays need no tracing
 /// (the paper's pixel areas) and only see the background; `progress` is
 /// told rows done.
-pub fn render_with<T, M, S>(scene: &Scene, opts: &RenderOptions, make_tracer: M, skip_primary: S, progress: &(dyn Fn(u32) + Sync)) -> (Film, RenderStats)
+pub fn render_with<T, M, S>(
+    scene: &Scene,
+    opts: &RenderOptions,
+    make_tracer: M,
+    skip_primary: S,
+    progress: &(dyn Fn(u32) + Sync),
+) -> (Film, RenderStats)
 where
     T: Tracer,
     M: Fn() -> T + Sync,
@@ -142,7 +148,13 @@ where
                                         film.add(job.pixel, shader.miss(&job));
                                     } else {
                                         traced = true;
-                                        shader.run_path(&mut tracer, job, &mut film, &mut stats.rays, &mut stack);
+                                        shader.run_path(
+                                            &mut tracer,
+                                            job,
+                                            &mut film,
+                                            &mut stats.rays,
+                                            &mut stack,
+                                        );
                                     }
                                 }
                                 if traced {
@@ -160,7 +172,10 @@ where
                 })
             })
             .collect();
-        handles.into_iter().map(|h| h.join().expect("render thread panicked")).collect()
+        handles
+            .into_iter()
+            .map(|h| h.join().expect("render thread panicked"))
+            .collect()
     });
     let mut film = Film::new(opts.width, opts.height);
     let mut stats = RenderStats::default();
@@ -181,13 +196,22 @@ where
 }
 
 /// Renders with Roth's brute force.
-pub fn render_roth(scene: &Scene, opts: &RenderOptions, progress: &(dyn Fn(u32) + Sync)) -> (Film, RenderStats) {
+pub fn render_roth(
+    scene: &Scene,
+    opts: &RenderOptions,
+    progress: &(dyn Fn(u32) + Sync),
+) -> (Film, RenderStats) {
     render_with(scene, opts, || RothTracer::new(scene), |_| false, progress)
 }
 
 /// Renders with the paper's cells: builds the subdivision for the camera,
 /// then traces only the pixel areas.
-pub fn render_cells(scene: &Scene, opts: &RenderOptions, cell_opts: CellOptions, progress: &(dyn Fn(u32) + Sync)) -> (Film, RenderStats, CellStructure) {
+pub fn render_cells(
+    scene: &Scene,
+    opts: &RenderOptions,
+    cell_opts: CellOptions,
+    progress: &(dyn Fn(u32) + Sync),
+) -> (Film, RenderStats, CellStructure) {
     let cs = CellStructure::build(scene, opts.width, opts.height, cell_opts);
     let (film, mut stats) = render_with(
         scene,

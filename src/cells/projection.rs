@@ -137,7 +137,20 @@ impl View {
         };
         let mut verts: Vec<Vec3> = corners.iter().copied().filter(|c| keep(c.z)).collect();
         // Edges of the box that cross the eye plane contribute a vertex on it.
-        const EDGES: [(usize, usize); 12] = [(0, 1), (2, 3), (4, 5), (6, 7), (0, 2), (1, 3), (4, 6), (5, 7), (0, 4), (1, 5), (2, 6), (3, 7)];
+        const EDGES: [(usize, usize); 12] = [
+            (0, 1),
+            (2, 3),
+            (4, 5),
+            (6, 7),
+            (0, 2),
+            (1, 3),
+            (4, 6),
+            (5, 7),
+            (0, 4),
+            (1, 5),
+            (2, 6),
+            (3, 7),
+        ];
         for (i, j) in EDGES {
             let (a, c) = (corners[i], corners[j]);
             if (a.z < 0.0 && c.z > 0.0) || (a.z > 0.0 && c.z < 0.0) {
@@ -193,7 +206,142 @@ impl View {
             }
         }
         let (rz0, rz1) = region.depth_range();
-        Some((inflate_rect(r), inflate(z0, z1, 0).0.max(rz0), inflate(z0, z1, 0).1.min(rz1)))
+        Some((
+            inflate_rect(r),
+            inflate(z0, z1, 0).0.max(rz0),
+            inflate(z0, z1, 0).1.min(rz1),
+        ))
+    }
+}
+
+/// A box in camera coordinates: its eight corners, in `Aabb::corners`
+/// order.
+pub type CamBox = [Vec3; 8];
+
+/// The six faces of a box as corner indices (`Aabb::corners` order), each
+/// a cycle.
+const FACES: [[usize; 4]; 6] = [
+    [0, 1, 3, 2],
+    [4, 5, 7, 6],
+    [0, 1, 5, 4],
+    [2, 3, 7, 6],
+    [0, 2, 6, 4],
+    [1, 3, 7, 5],
+];
+
+impl View {
+    /// The corners of `b` in camera coordinates.
+    pub fn cam_box(&self, b: &Aabb) -> CamBox {
+        b.corners().map(|c| self.point(c))
+    }
+
+    /// The depth interval of the part of a box (`corners`, in camera
+    /// coordinates) inside the region's prism over the screen rectangle
+    /// `r` (the super cell's extension in depth, figure 4), or None when
+    /// no part of it is there.
+    ///
+    /// Deviation from section 3.3, which cuts a super cell at the depth
+    /// extents of its primitives' whole boxes: a box seen obliquely (a
+    /// wall, a floor) spans a large depth range, but its part over one
+    /// super cell spans little of it. Clipping the box by the super cell's
+    /// side planes (and the eye plane) before taking the depth extent keeps
+    /// such a primitive out of the cells it does not reach. The clipping
+    /// planes are pushed outwards by a relative margin, and the interval
+    /// is inflated, so the test only errs on the side of keeping a
+    /// primitive.
+    pub fn depth_range_in(corners: &CamBox, region: Region, r: &Rect) -> Option<(f64, f64)> {
+        // Half-spaces a·p ≥ 0 with p = (x, y, z, 1).
+        let mut planes: [[f64; 4]; 5] = [[0.0; 4]; 5];
+        let mut n = 0;
+        let margin = |v: f64| v.abs() * 1e-9 + 1e-12;
+        for (axis, lo, hi) in [(0usize, r.x0, r.x1), (1, r.y0, r.y1)] {
+            let mut unit = [0.0; 4];
+            unit[axis] = 1.0;
+            match region {
+                // x − c·z ≥ 0 and c·z − x ≥ 0: planes through the eye.
+                Region::Front => {
+                    if lo.is_finite() {
+                        let c = lo - margin(lo);
+                        planes[n] = [unit[0], unit[1], -c, 0.0];
+                        n += 1;
+                    }
+                    if hi.is_finite() {
+                        let c = hi + margin(hi);
+                        planes[n] = [-unit[0], -unit[1], c, 0.0];
+                        n += 1;
+                    }
+                }
+                Region::Back => {
+                    if lo.is_finite() {
+                        planes[n] = [unit[0], unit[1], 0.0, -(lo - margin(lo))];
+                        n += 1;
+                    }
+                    if hi.is_finite() {
+                        planes[n] = [-unit[0], -unit[1], 0.0, hi + margin(hi)];
+                        n += 1;
+                    }
+                }
+            }
+        }
+        // The region's side of the eye plane.
+        planes[n] = match region {
+            Region::Front => [0.0, 0.0, 1.0, 0.0],
+            Region::Back => [0.0, 0.0, -1.0, 0.0],
+        };
+        n += 1;
+        let planes = &planes[..n];
+        let (mut z0, mut z1) = (f64::INFINITY, f64::NEG_INFINITY);
+        // Sutherland-Hodgman on each face. The extremes of z over the
+        // clipped box are at its vertices: on a face of the box (found
+        // here), or where three clipping planes meet, which is on the eye
+        // plane (the side planes of the front region all pass through the
+        // eye; in the back region they are parallel to z). Those count
+        // below, conservatively, whenever the box reaches the eye plane.
+        let mut a = [Vec3::ZERO; 12];
+        let mut b = [Vec3::ZERO; 12];
+        for face in &FACES {
+            let mut len = 4;
+            for (k, &i) in face.iter().enumerate() {
+                a[k] = corners[i];
+            }
+            for pl in planes {
+                let dist = |p: &Vec3| pl[0] * p.x + pl[1] * p.y + pl[2] * p.z + pl[3];
+                let mut out = 0;
+                for k in 0..len {
+                    let (p, q) = (a[k], a[(k + 1) % len]);
+                    let (dp, dq) = (dist(&p), dist(&q));
+                    if dp >= 0.0 {
+                        b[out] = p;
+                        out += 1;
+                    }
+                    if (dp >= 0.0) != (dq >= 0.0) {
+                        let s = dp / (dp - dq);
+                        b[out] = p + (q - p) * s;
+                        out += 1;
+                    }
+                }
+                len = out;
+                std::mem::swap(&mut a, &mut b);
+                if len == 0 {
+                    break;
+                }
+            }
+            for p in &a[..len] {
+                z0 = z0.min(p.z);
+                z1 = z1.max(p.z);
+            }
+        }
+        if z0 > z1 {
+            return None;
+        }
+        if corners.iter().any(|c| c.z <= 0.0) && corners.iter().any(|c| c.z >= 0.0) {
+            z0 = z0.min(0.0);
+            z1 = z1.max(0.0);
+        }
+        let (rz0, rz1) = region.depth_range();
+        let (z0, z1) = inflate(z0, z1, 0);
+        let pad = (z1 - z0) * 1e-9;
+        Some(((z0 - pad).max(rz0), (z1 + pad).min(rz1)))
     }
 }
 

@@ -57,8 +57,16 @@ impl<'a> SubtreeBuilder<'a> {
     }
 
     /// The subtree over `prims` (Algorithm 3), added to `arena`; None when
-    /// nothing of the scene can be seen in the cell.
-    pub fn build(&mut self, prims: &[u32], arena: &mut CsgTree) -> Option<NodeId> {
+    /// nothing of the scene can be seen in the cell. `origin` gets, for
+    /// every node added to the arena, the scene node it stands for (whose
+    /// minimal box is its culling box), so that per-ray caches can be keyed
+    /// by scene node across cells.
+    pub fn build(
+        &mut self,
+        prims: &[u32],
+        arena: &mut CsgTree,
+        origin: &mut Vec<u32>,
+    ) -> Option<NodeId> {
         let root = self.tree.root?;
         self.generation += 1;
         let g = self.generation;
@@ -78,7 +86,10 @@ impl<'a> SubtreeBuilder<'a> {
             let n = self.marked[k];
             let bounds = self.minimal[n as usize];
             let r = match self.tree.nodes[n as usize] {
-                CsgNode::Leaf(p) => arena.leaf_with_bounds(PrimId(p.0), bounds).0,
+                CsgNode::Leaf(p) => {
+                    origin.push(n);
+                    arena.leaf_with_bounds(PrimId(p.0), bounds).0
+                }
                 CsgNode::Op { op, .. } => {
                     kids.clear();
                     let mut any_empty = false;
@@ -102,13 +113,18 @@ impl<'a> SubtreeBuilder<'a> {
                     } else if kids.len() == 1 {
                         kids[0].0
                     } else {
+                        origin.push(n);
                         arena.op_with_bounds(op, kids.clone(), bounds).0
                     }
                 }
             };
             self.result[n as usize] = r;
         }
-        let r = if self.stamp[root.index()] == g { self.result[root.index()] } else { NONE };
+        let r = if self.stamp[root.index()] == g {
+            self.result[root.index()]
+        } else {
+            NONE
+        };
         (r != NONE).then_some(NodeId(r))
     }
 }

@@ -15,10 +15,10 @@
 //! cell and the first boundary found is the one Roth's brute force finds.
 
 use super::bsp::stitch;
-use super::projection::{contains, CamRay, Region};
-use super::{CellStructure, RegionCells, NO_SUBTREE};
-use crate::csg::{EvalCounts, Evaluator, NodeId, PrimHits, SpanList};
-use crate::geom::Ray;
+use super::projection::{CamRay, Region, contains};
+use super::{CellStructure, NO_SUBTREE, RegionCells, SubtreeLeaf};
+use crate::csg::{Crossing, EvalCounts, Evaluator, NodeId, PrimHits, PrimId};
+use crate::geom::{Aabb, Ray, Vec3};
 use crate::render::TraceCounters;
 use crate::scene::Scene;
 use crate::trace::{Hit, Tracer};
@@ -39,14 +39,6 @@ pub enum Step {
     Leave,
 }
 
-/// Which face a ray leaves a cell by.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Face {
-    Side { axis: usize, high: bool },
-    Depth { high: bool },
-    None,
-}
-
 /// The per-ray quantities of the walk in one region.
 #[derive(Clone, Copy, Debug)]
 pub struct RegionRay {
@@ -54,6 +46,10 @@ pub struct RegionRay {
     pub cam: CamRay,
     /// Motion signs along screen x, screen y and depth.
     pub m: [f64; 3],
+    /// `1 / cam.d.z`, for depth crossings (infinite for a zero or
+    /// subnormal `d.z`, whose crossings are then not finite: none, as for
+    /// `d.z = 0`).
+    inv_dz: f64,
 }
 
 impl RegionRay {
@@ -62,6 +58,7 @@ impl RegionRay {
             region,
             cam,
             m: [cam.motion(region, 0), cam.motion(region, 1), cam.d.z],
+            inv_dz: 1.0 / cam.d.z,
         }
     }
 }
@@ -70,12 +67,10 @@ impl CellStructure {
     /// The cell containing the ray's point at `t` (the start of its part in
     /// the region), by the BSP and a depth search; ties by direction.
     pub fn locate(&self, rr: &RegionRay, t: f64) -> CellRef {
-        let rc = self.region(rr.region);
-        let (sx, sy, z) = rr.cam.screen_at(rr.region, t);
-        let s = rc.partition.locate(sx, sy, rr.m[0], rr.m[1]);
+        let (_, k) = self.region(rr.region).locate(rr, t, u32::MAX);
         CellRef {
             region: rr.region,
-            cell: rc.cell_at_depth(s, z, rr.m[2]),
+            cell: k,
         }
     }
 
@@ -83,53 +78,135 @@ impl CellStructure {
     /// the cell it enters there (section 7, figures 11-13).
     pub fn step(&self, rr: &RegionRay, c: CellRef, t_in: f64) -> (f64, Step) {
         let rc = self.region(rr.region);
-        let cell = rc.cells[c.cell as usize];
-        let rect = rc.partition.leaves[cell.super_cell as usize].rect;
+        let s = rc.cells[c.cell as usize].super_cell;
+        let (t_out, next) = rc.exit(rr, s, c.cell, t_in);
+        let next = match next {
+            Some((_, k)) => Step::Next(
+                CellRef {
+                    region: c.region,
+                    cell: k,
+                },
+                t_out,
+            ),
+            None => Step::Leave,
+        };
+        (t_out, next)
+    }
+}
+
+impl RegionCells {
+    /// The super cell and cell containing the ray's point at `t`: super
+    /// cell `hint` if it contains the point, else by descending the BSP
+    /// (same ties: the leaves' half-open rectangles are the BSP's cuts).
+    #[inline]
+    fn locate(&self, rr: &RegionRay, t: f64, hint: u32) -> (u32, u32) {
+        let (sx, sy, z) = rr.cam.screen_at(rr.region, t);
+        let s = match self.supers.get(hint as usize) {
+            Some(h)
+                if contains(h.rect.x0, h.rect.x1, sx, rr.m[0])
+                    && contains(h.rect.y0, h.rect.y1, sy, rr.m[1]) =>
+            {
+                hint
+            }
+            _ => self.partition.locate(sx, sy, rr.m[0], rr.m[1]),
+        };
+        (s, self.cell_at_depth(s, z, rr.m[2]))
+    }
+
+    /// Where the ray leaves cell `k` of super cell `s` (never before
+    /// `t_in`), and the super cell and cell it enters there, if any.
+    #[inline]
+    fn exit(&self, rr: &RegionRay, s: u32, k: u32, t_in: f64) -> (f64, Option<(u32, u32)>) {
+        match rr.region {
+            Region::Front => self.exit_in::<true>(rr, s, k, t_in),
+            Region::Back => self.exit_in::<false>(rr, s, k, t_in),
+        }
+    }
+
+    /// `exit` for one region (`FRONT` or not), with the crossings of
+    /// `CamRay::cross_side` and `CamRay::cross_depth` written out.
+    #[inline(always)]
+    fn exit_in<const FRONT: bool>(
+        &self,
+        rr: &RegionRay,
+        s: u32,
+        k: u32,
+        t_in: f64,
+    ) -> (f64, Option<(u32, u32)>) {
+        let rect = &self.supers[s as usize].rect;
+        let cell = &self.cells[k as usize];
+        let (o, d) = (rr.cam.o, rr.cam.d);
+        // A side plane's crossing, or infinity for none (parallel, at
+        // infinity, or, in front, the plane's mirror half behind the eye).
+        let side = |axis: usize, c: f64| -> f64 {
+            let t = if FRONT {
+                (c * o.z - o[axis]) / (d[axis] - c * d.z)
+            } else {
+                (c - o[axis]) / d[axis]
+            };
+            if c.is_finite() && t.is_finite() && (!FRONT || o.z + t * d.z > 0.0) {
+                t
+            } else {
+                f64::INFINITY
+            }
+        };
         let mut t_out = f64::INFINITY;
-        let mut face = Face::None;
+        // 0, 1: the side faces across x and y; 2: depth; 3: none.
+        let mut face = 3usize;
         // Ties between faces: x, then y, then depth (one fixed rule).
         for axis in 0..2 {
             let m = rr.m[axis];
-            if m == 0.0 {
-                continue;
-            }
-            let high = m > 0.0;
-            let c = if high { rect.hi(axis) } else { rect.lo(axis) };
-            if let Some(t) = rr.cam.cross_side(rr.region, axis, c)
-                && t < t_out
-            {
-                t_out = t;
-                face = Face::Side { axis, high };
+            if m != 0.0 {
+                let t = side(
+                    axis,
+                    if m > 0.0 {
+                        rect.hi(axis)
+                    } else {
+                        rect.lo(axis)
+                    },
+                );
+                if t < t_out {
+                    t_out = t;
+                    face = axis;
+                }
             }
         }
         if rr.m[2] != 0.0 {
-            let high = rr.m[2] > 0.0;
-            let z = if high { cell.zhi } else { cell.zlo };
-            if let Some(t) = rr.cam.cross_depth(z)
-                && t < t_out
-            {
+            let z = if rr.m[2] > 0.0 { cell.zhi } else { cell.zlo };
+            let t = (z - o.z) * rr.inv_dz;
+            if z.is_finite() && t.is_finite() && t < t_out {
                 t_out = t;
-                face = Face::Depth { high };
+                face = 2;
             }
         }
         // The entry t never decreases from cell to cell.
-        let t_out = t_out.max(t_in);
+        let t_out = if t_out < t_in { t_in } else { t_out };
         let next = match face {
-            Face::None => Step::Leave,
-            Face::Depth { high } => {
-                let range = rc.cells_of(cell.super_cell);
-                let k = c.cell as usize;
-                let n = if high { k + 1 } else { k.wrapping_sub(1) };
-                if range.contains(&n) {
-                    Step::Next(CellRef { region: c.region, cell: n as u32 }, t_out)
+            3 => None,
+            2 => {
+                // Front and back pointers: the neighbours in depth order.
+                let n = if rr.m[2] > 0.0 {
+                    k + 1
                 } else {
-                    Step::Leave
-                }
+                    k.wrapping_sub(1)
+                };
+                let (first, end) = (self.first_cell[s as usize], self.first_cell[s as usize + 1]);
+                (n >= first && n < end).then_some((s, n))
             }
-            Face::Side { axis, high } => match self.side_neighbour(rc, rr, cell.super_cell, axis, high, t_out, cell.zlo, cell.zhi) {
-                Some(n) => Step::Next(CellRef { region: c.region, cell: n }, t_out),
-                None => Step::Leave,
-            },
+            axis => {
+                // The exit point: its coordinate along the face and its depth.
+                let other = 1 - axis;
+                let z = o.z + t_out * d.z;
+                let (q, z) = if !FRONT {
+                    (o[other] + t_out * d[other], z.min(0.0))
+                } else if z > 0.0 {
+                    ((o[other] + t_out * d[other]) / z, z)
+                } else {
+                    let (sx, sy, z) = rr.cam.screen_at(rr.region, t_out);
+                    (if other == 0 { sx } else { sy }, z)
+                };
+                self.side_neighbour(rr, s, axis, rr.m[axis] > 0.0, q, z, cell.zlo, cell.zhi)
+            }
         };
         (t_out, next)
     }
@@ -138,15 +215,24 @@ impl CellStructure {
     /// pointer at the face's low end and climb the neighbours' pointers
     /// until one contains the exit point, then find the depth slab.
     #[allow(clippy::too_many_arguments)]
-    fn side_neighbour(&self, rc: &RegionCells, rr: &RegionRay, s: u32, axis: usize, high: bool, t: f64, zlo: f64, zhi: f64) -> Option<u32> {
+    #[inline]
+    fn side_neighbour(
+        &self,
+        rr: &RegionRay,
+        s: u32,
+        axis: usize,
+        high: bool,
+        q: f64,
+        z: f64,
+        zlo: f64,
+        zhi: f64,
+    ) -> Option<(u32, u32)> {
         use stitch::*;
-        let leaves = &rc.partition.leaves;
-        let rect = leaves[s as usize].rect;
+        let supers = &self.supers;
+        let rect = supers[s as usize].rect;
         let other = 1 - axis;
-        let (sx, sy, z) = rr.cam.screen_at(rr.region, t);
-        let q = if other == 0 { sx } else { sy };
         // Clamped to the face, so the walk stays among true neighbours.
-        let q = q.clamp(rect.lo(other), rect.hi(other));
+        let q = clamp(q, rect.lo(other), rect.hi(other));
         let mq = rr.m[other];
         let (start, climb) = match (axis, high) {
             (0, false) => (LD_LEFT, RU_UP),
@@ -154,31 +240,195 @@ impl CellStructure {
             (_, false) => (LD_DOWN, RU_RIGHT),
             (_, true) => (LU_UP, RD_RIGHT),
         };
-        let mut n = leaves[s as usize].stitches[start];
-        let mut guard = leaves.len();
+        let mut n = supers[s as usize].stitches[start];
+        let mut guard = supers.len();
         while n != NONE {
-            let r = leaves[n as usize].rect;
-            if contains(r.lo(other), r.hi(other), q, mq) {
-                let z = z.clamp(zlo, zhi);
-                return Some(rc.cell_at_depth(n, z, rr.m[2]));
+            let sc = &supers[n as usize];
+            if contains(sc.rect.lo(other), sc.rect.hi(other), q, mq) {
+                let z = clamp(z, zlo, zhi);
+                return Some((n, self.cell_at_depth(n, z, rr.m[2])));
             }
-            n = leaves[n as usize].stitches[climb];
+            n = sc.stitches[climb];
             guard -= 1;
             if guard == 0 {
                 break;
             }
         }
-        debug_assert!(false, "corner-stitch walk found no neighbour");
+        // The exit point is at the face's end and the ray moves past it: it
+        // leaves through the corner, toward a diagonal neighbour that no
+        // tile along the face contains. Find it from here by Ousterhout's
+        // point-finding walk, with the exit coordinate exactly on the face
+        // so the walk can never return this super cell.
+        let mut p = [0.0; 2];
+        p[axis] = if high { rect.hi(axis) } else { rect.lo(axis) };
+        p[other] = q;
+        let n = self.walk_to(s, p, [rr.m[0], rr.m[1]])?;
+        Some((n, self.cell_at_depth(n, clamp(z, zlo, zhi), rr.m[2])))
+    }
+
+    /// Ousterhout's point finding by corner stitches: from super cell `s`,
+    /// move down or up until the tile's y range holds `p.y`, then left or
+    /// right until its x range holds `p.x`, and again while needed. Ties go
+    /// the way the ray moves (`m`).
+    fn walk_to(&self, s: u32, p: [f64; 2], m: [f64; 2]) -> Option<u32> {
+        use stitch::*;
+        let supers = &self.supers;
+        let mut n = s;
+        for _ in 0..=supers.len() {
+            let r = supers[n as usize].rect;
+            let next = if !contains(r.y0, r.y1, p[1], m[1]) {
+                if p[1] < r.y0 || (p[1] == r.y0 && m[1] < 0.0) {
+                    LD_DOWN
+                } else {
+                    RU_UP
+                }
+            } else if !contains(r.x0, r.x1, p[0], m[0]) {
+                if p[0] < r.x0 || (p[0] == r.x0 && m[0] < 0.0) {
+                    LD_LEFT
+                } else {
+                    RU_RIGHT
+                }
+            } else {
+                return Some(n);
+            };
+            n = supers[n as usize].stitches[next];
+            if n == NONE {
+                break;
+            }
+        }
+        debug_assert!(false, "corner-stitch point finding left the plane");
         None
     }
 }
 
+/// A world ray with its inverse direction, for the culling slab tests of a
+/// ray's many cells (one division per axis per ray, not per test).
+#[derive(Clone, Copy, Debug)]
+struct SlabRay {
+    o: [f64; 3],
+    d: [f64; 3],
+    inv: [f64; 3],
+    /// Every direction component is normal (not zero, not subnormal): the
+    /// products below cannot be NaN, so the test needs no branch per axis.
+    plain: bool,
+}
+
+impl SlabRay {
+    fn new(r: &Ray) -> Self {
+        let (o, d) = (r.origin.to_array(), r.dir.to_array());
+        let inv = d.map(|v| 1.0 / v);
+        let plain = d.iter().all(|v| v.is_normal())
+            && inv.iter().all(|v| v.is_finite())
+            && o.iter().all(|v| v.is_finite());
+        SlabRay { o, d, inv, plain }
+    }
+
+    /// Whether the ray meets box `b`: `Aabb::ray_interval(..).is_some()`
+    /// with a multiplication by the inverse for the division. Culling boxes
+    /// are inflated (`CsgTree::cull_bounds`), so a rounding difference
+    /// cannot cull a box the ray reaches.
+    /// `Aabb::ray_interval` by the inverse direction (for the scene box).
+    #[inline]
+    fn interval(&self, b: &Aabb, ray: &Ray) -> Option<(f64, f64)> {
+        if !self.plain {
+            return b.ray_interval(ray);
+        }
+        let (x0, x1) = (
+            (b.min.x - self.o[0]) * self.inv[0],
+            (b.max.x - self.o[0]) * self.inv[0],
+        );
+        let (y0, y1) = (
+            (b.min.y - self.o[1]) * self.inv[1],
+            (b.max.y - self.o[1]) * self.inv[1],
+        );
+        let (z0, z1) = (
+            (b.min.z - self.o[2]) * self.inv[2],
+            (b.max.z - self.o[2]) * self.inv[2],
+        );
+        let t0 = max(max(min(x0, x1), min(y0, y1)), min(z0, z1));
+        let t1 = min(min(max(x0, x1), max(y0, y1)), max(z0, z1));
+        (t0 <= t1).then_some((t0, t1))
+    }
+
+    #[inline]
+    fn meets(&self, b: &Aabb) -> bool {
+        if self.plain {
+            let (x0, x1) = (
+                (b.min.x - self.o[0]) * self.inv[0],
+                (b.max.x - self.o[0]) * self.inv[0],
+            );
+            let (y0, y1) = (
+                (b.min.y - self.o[1]) * self.inv[1],
+                (b.max.y - self.o[1]) * self.inv[1],
+            );
+            let (z0, z1) = (
+                (b.min.z - self.o[2]) * self.inv[2],
+                (b.max.z - self.o[2]) * self.inv[2],
+            );
+            let t0 = max(max(min(x0, x1), min(y0, y1)), min(z0, z1));
+            let t1 = min(min(max(x0, x1), max(y0, y1)), max(z0, z1));
+            // An empty box has min > max: its slabs cross over, t0 > t1.
+            return t0 <= t1;
+        }
+        let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
+        let (lo, hi) = (b.min.to_array(), b.max.to_array());
+        for a in 0..3 {
+            if self.d[a] == 0.0 {
+                if self.o[a] < lo[a] || self.o[a] > hi[a] {
+                    return false;
+                }
+                continue;
+            }
+            let (mut a0, mut a1) = (
+                (lo[a] - self.o[a]) * self.inv[a],
+                (hi[a] - self.o[a]) * self.inv[a],
+            );
+            if a0 > a1 {
+                std::mem::swap(&mut a0, &mut a1);
+            }
+            if a0 > t0 {
+                t0 = a0;
+            }
+            if a1 < t1 {
+                t1 = a1;
+            }
+            if t0 > t1 {
+                return false;
+            }
+        }
+        true
+    }
+}
+
 /// Section 8: per primitive, the last ray it was tested against and the
-/// result, so a primitive spanning several cells is intersected once.
+/// extent in `t` of its crossings (`lo > hi` for none), so a primitive
+/// spanning several cells is intersected once; the crossings themselves
+/// are in `CellTracer::hits`. A primitive whose (minimal) box the ray
+/// misses gets no crossings here too, so the culling slab test is also
+/// done once per ray, not once per cell. Kept apart from the crossings
+/// (24 bytes, not 48): a cell's first look reads only these.
 #[derive(Clone, Copy, Debug)]
 struct Mailbox {
     ray: u64,
-    hits: PrimHits,
+    lo: f64,
+    hi: f64,
+}
+
+impl Mailbox {
+    fn of(ray: u64, hits: &PrimHits) -> Mailbox {
+        let (lo, hi) = match hits {
+            PrimHits::Miss => (f64::INFINITY, f64::NEG_INFINITY),
+            PrimHits::Solid { enter, exit } => (enter.t, exit.t),
+            PrimHits::Sheet { hits, count } => {
+                let h = &hits[..*count as usize];
+                h.iter()
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), c| {
+                        (a.min(c.t), b.max(c.t))
+                    })
+            }
+        };
+        Mailbox { ray, lo, hi }
+    }
 }
 
 /// The cells accelerator on one thread.
@@ -187,14 +437,22 @@ pub struct CellTracer<'a> {
     scene: &'a Scene,
     eval: Evaluator,
     mailboxes: Vec<Mailbox>,
+    /// Per primitive, its crossings with the ray of its mailbox.
+    hits: Vec<PrimHits>,
+    /// Per scene node, the last ray whose culling test of an operator is
+    /// known, and the answer (a mailbox for operators' boxes).
+    op_ray: Vec<u64>,
+    op_culled: Vec<bool>,
     /// Unique number of the current ray (mailbox key).
     ray_id: u64,
     last_ray: Option<Ray>,
+    slab: SlabRay,
+    /// Per region, the super cell where the last walk there started or
+    /// found its hit: where the next ray most likely starts (the next
+    /// pixel's, or the shadow rays from the hit).
+    hint: [u32; 2],
     pub counters: TraceCounters,
     pub eval_counts: EvalCounts,
-    /// The span list of the last (ray, subtree) evaluated.
-    spans: SpanList,
-    last_eval: Option<(u64, u32)>,
 }
 
 impl<'a> CellTracer<'a> {
@@ -203,56 +461,180 @@ impl<'a> CellTracer<'a> {
             cs,
             scene,
             eval: Evaluator::new(),
-            mailboxes: vec![
-                Mailbox {
-                    ray: 0,
-                    hits: PrimHits::Miss
-                };
-                scene.primitives.len()
-            ],
+            mailboxes: vec![Mailbox::of(0, &PrimHits::Miss); scene.primitives.len()],
+            hits: vec![PrimHits::Miss; scene.primitives.len()],
+            op_ray: vec![0; scene.tree.nodes.len()],
+            op_culled: vec![false; scene.tree.nodes.len()],
             ray_id: 0,
             last_ray: None,
+            slab: SlabRay::new(&Ray::new(Vec3::ZERO, Vec3::Z)),
+            hint: [u32::MAX; 2],
             counters: TraceCounters::default(),
             eval_counts: EvalCounts::default(),
-            spans: SpanList::default(),
-            last_eval: None,
         }
     }
 
-    /// The first boundary of cell `c`'s subtree with `t_min < t`, `t_in ≤ t`
-    /// and `t < t_end`.
-    fn in_cell(&mut self, c: CellRef, ray: &Ray, t_min: f64, t_in: f64, t_end: f64) -> Option<Hit> {
-        self.counters.cells_visited += 1;
-        let cell = self.cs.region(c.region).cells[c.cell as usize];
-        if cell.subtree == NO_SUBTREE || t_end < t_in {
-            return None;
-        }
-        // Neighbouring cells often keep the same primitives, and so share
-        // one subtree (they are memoised by primitive set): the span list
-        // of the same ray is then already known.
-        if self.last_eval != Some((self.ray_id, cell.subtree)) {
-            let prims = &self.scene.primitives;
-            let mailboxes = &mut self.mailboxes;
-            let counters = &mut self.counters;
-            let id = self.ray_id;
-            let spans: &SpanList = self.eval.evaluate(&self.cs.subtrees, NodeId(cell.subtree), ray, true, &mut self.eval_counts, |p| {
-                let mb = &mut mailboxes[p.index()];
-                if mb.ray == id {
-                    counters.mailbox_hits += 1;
-                } else {
+    /// The first boundary of the subtree rooted at `subtree` with
+    /// `t_lo < t < t_end`.
+    ///
+    /// Only the window `[t_lo, t_end]` matters: whether a point of the ray
+    /// is in a CSG solid depends only on which primitives contain it, so a
+    /// primitive's span (or surface crossing) that lies wholly outside the
+    /// window can be left out of the evaluation without changing any
+    /// boundary inside it, nor which of several coincident ends is kept
+    /// (ends at the same `t` are all kept or all left out). Most operands
+    /// of a cell's subtree are then empty, and the evaluation short-cuts
+    /// (empty operands of unions are dropped, an empty first operand of a
+    /// difference or any empty operand of an intersection empties it).
+    #[inline]
+    fn in_cell(&mut self, subtree: u32, ray: &Ray, t_lo: f64, t_end: f64) -> Option<Hit> {
+        let cs = self.cs;
+        let tree = &cs.subtrees;
+        let id = self.ray_id;
+        let prims = &self.scene.primitives;
+        let slab = &self.slab;
+        let counters = &mut self.counters;
+        let mailboxes = &mut self.mailboxes;
+        let all_hits = &mut self.hits;
+        counters.subtree_evaluations += 1;
+        // A leaf's crossings in the window, through its mailbox (section
+        // 8); the culling test against its minimal box only when the
+        // mailbox is empty.
+        let eval_counts = &mut self.eval_counts;
+        let mut leaf = |n: NodeId, p: PrimId| -> PrimHits {
+            let mb = &mut mailboxes[p.index()];
+            eval_counts.nodes_visited += 1;
+            if mb.ray == id {
+                counters.mailbox_hits += 1;
+            } else {
+                let hits = if slab.meets(&tree.cull_bounds[n.index()]) {
                     counters.intersection_tests += 1;
-                    *mb = Mailbox {
-                        ray: id,
-                        hits: prims[p.index()].intersect(ray),
-                    };
+                    prims[p.index()].intersect(ray)
+                } else {
+                    eval_counts.nodes_culled += 1;
+                    PrimHits::Miss
+                };
+                *mb = Mailbox::of(id, &hits);
+                if !matches!(hits, PrimHits::Miss) {
+                    all_hits[p.index()] = hits;
                 }
-                mb.hits
-            });
-            self.spans.clone_from(spans);
-            self.counters.subtree_evaluations += 1;
-            self.last_eval = Some((self.ray_id, cell.subtree));
+            }
+            if mb.hi < t_lo || mb.lo > t_end {
+                PrimHits::Miss
+            } else {
+                window(&all_hits[p.index()], t_lo, t_end)
+            }
+        };
+        // First look: the leaves with anything in the window. None: the
+        // subtree has no boundary there. One: the subtree is that leaf,
+        // or nothing, by the operators above it (see `SubtreeLeaf`). The
+        // evaluator runs only for two or more.
+        let [a, b] = cs.leaf_span[subtree as usize];
+        let mut lone: Option<(PrimHits, &SubtreeLeaf)> = None;
+        let mut several = false;
+        for l in &cs.subtree_leaves[a as usize..b as usize] {
+            let h = leaf(NodeId(l.node), PrimId(l.prim));
+            if !matches!(h, PrimHits::Miss) {
+                if lone.is_some() {
+                    several = true;
+                    break;
+                }
+                lone = Some((h, l));
+            }
         }
-        self.spans.first_between(t_min.max(prev_float(t_in)), t_end).map(Hit::from)
+        if !several {
+            return lone
+                .filter(|(_, l)| l.lone_is_result)
+                .and_then(|(h, l)| first_crossing(&h, PrimId(l.prim), t_lo, t_end));
+        }
+        let origin = &cs.origin;
+        let (op_ray, op_culled) = (&mut self.op_ray, &mut self.op_culled);
+        self.eval
+            .evaluate_with(tree, NodeId(subtree), leaf, |n| {
+                let o = origin[n.index()] as usize;
+                if op_ray[o] != id {
+                    op_ray[o] = id;
+                    op_culled[o] = !slab.meets(&tree.cull_bounds[n.index()]);
+                }
+                op_culled[o]
+            })
+            .first_between(t_lo, t_end)
+            .map(Hit::from)
+    }
+}
+
+/// A primitive's crossings without what lies wholly outside `[t_lo, t_end]`
+/// (see `CellTracer::in_cell`).
+#[inline]
+fn window(hits: &PrimHits, t_lo: f64, t_end: f64) -> PrimHits {
+    match *hits {
+        PrimHits::Solid { enter, exit } if exit.t < t_lo || enter.t > t_end => PrimHits::Miss,
+        PrimHits::Sheet { hits, count } => {
+            let mut out = [hits[0]; 2];
+            let mut n = 0;
+            for c in &hits[..count as usize] {
+                if c.t >= t_lo && c.t <= t_end {
+                    out[n] = *c;
+                    n += 1;
+                }
+            }
+            if n == 0 {
+                PrimHits::Miss
+            } else {
+                PrimHits::Sheet {
+                    hits: out,
+                    count: n as u8,
+                }
+            }
+        }
+        h => h,
+    }
+}
+
+/// The first of one primitive's crossings with `t_lo < t < t_end`: what
+/// `SpanList::first_between` gives on the list `push_prim_hits` makes.
+#[inline]
+fn first_crossing(hits: &PrimHits, p: PrimId, t_lo: f64, t_end: f64) -> Option<Hit> {
+    let hit = |c: &Crossing| Hit {
+        t: c.t,
+        prim: p,
+        part: c.part,
+        flip: false,
+    };
+    let inside = |c: &Crossing| c.t > t_lo && c.t < t_end;
+    match hits {
+        PrimHits::Miss => None,
+        // enter.t < exit.t: the entry first.
+        PrimHits::Solid { enter, exit } => [enter, exit].into_iter().find(|c| inside(c)).map(hit),
+        // Sorted by t.
+        PrimHits::Sheet { hits, count } => {
+            hits[..*count as usize].iter().find(|c| inside(c)).map(hit)
+        }
+    }
+}
+
+/// Minimum and maximum of numbers that are not NaN (one instruction each,
+/// where `f64::min` and `f64::max` also handle NaN).
+#[inline(always)]
+fn min(a: f64, b: f64) -> f64 {
+    if a < b { a } else { b }
+}
+
+#[inline(always)]
+fn max(a: f64, b: f64) -> f64 {
+    if a > b { a } else { b }
+}
+
+/// `q` clamped to `[lo, hi]` (`lo <= hi`); NaN stays NaN, as with
+/// `f64::clamp`, without its check of the bounds.
+#[inline(always)]
+fn clamp(q: f64, lo: f64, hi: f64) -> f64 {
+    if q < lo {
+        lo
+    } else if q > hi {
+        hi
+    } else {
+        q
     }
 }
 
@@ -280,6 +662,17 @@ impl Tracer for CellTracer<'_> {
         if self.last_ray != Some(*ray) {
             self.ray_id += 1;
             self.last_ray = Some(*ray);
+            self.slab = SlabRay::new(ray);
+        }
+        // Section 3: the cells partition the space bounding the scene, and
+        // nothing lies outside it. The ray is followed only over its part
+        // inside that box (padded in t, so rounding cannot cut a boundary
+        // off); a ray that misses it meets nothing.
+        let (b0, b1) = self.slab.interval(&self.cs.scene_box, ray)?;
+        let pad = (b0.abs() + b1.abs()) * 1e-9;
+        let (t_min_box, t_max_box) = (t_min.max(b0 - pad), t_max.min(b1 + pad));
+        if t_min_box.partial_cmp(&t_max_box) != Some(std::cmp::Ordering::Less) {
+            return None;
         }
         let cam = self.cs.view.ray(ray);
         let mut order = [Region::Front, Region::Back];
@@ -288,32 +681,41 @@ impl Tracer for CellTracer<'_> {
         }
         for region in order {
             let (lo, hi) = cam.region_interval(region);
-            let lo = lo.max(t_min);
-            let hi = hi.min(t_max);
-            if !(lo < hi) {
+            let lo = lo.max(t_min_box);
+            let hi = hi.min(t_max_box);
+            if lo.partial_cmp(&hi) != Some(std::cmp::Ordering::Less) {
                 continue;
             }
+            let rc = self.cs.region(region);
             let rr = RegionRay::new(region, cam);
-            let mut c = self.cs.locate(&rr, lo);
+            let (mut s, mut k) = rc.locate(&rr, lo, self.hint[region as usize]);
+            self.hint[region as usize] = s;
             let mut t_in = lo;
             // The walk is monotone in every screen axis and depth, so it
             // ends; the guard only turns a bug into a miss, never a hang.
-            let mut guard = self.cs.stats.cells + 2;
+            let mut guard = rc.cells.len() + 2;
             loop {
                 guard -= 1;
                 debug_assert!(guard > 0, "cell walk did not end");
                 if guard == 0 {
                     break;
                 }
-                let (t_out, next) = self.cs.step(&rr, c, t_in);
+                let (t_out, next) = rc.exit(&rr, s, k, t_in);
+                self.counters.cells_visited += 1;
+                let subtree = rc.cells[k as usize].subtree;
                 let t_end = t_out.min(hi);
-                if let Some(h) = self.in_cell(c, ray, t_min, t_in, t_end) {
+                if subtree != NO_SUBTREE
+                    && t_end >= t_in
+                    && let Some(h) = self.in_cell(subtree, ray, t_min.max(prev_float(t_in)), t_end)
+                {
+                    self.hint[region as usize] = s;
                     return Some(h);
                 }
                 match next {
-                    Step::Next(n, t) if t < hi => {
-                        c = n;
-                        t_in = t;
+                    Some((s2, k2)) if t_out < hi => {
+                        s = s2;
+                        k = k2;
+                        t_in = t_out;
                     }
                     _ => break,
                 }

@@ -2,8 +2,10 @@
 //! the primitives' crossings, without recursion (trees may be thousands of
 //! levels deep, `ROBUSTNESS.md` case 15) and without allocating once warm.
 
-use super::span::{combine, CombineScratch};
+use super::span::{CombineScratch, combine};
 use super::{Boundary, CsgNode, CsgTree, NodeId, Op, PrimHits, PrimId, Span, SpanList};
+use std::cell::Cell;
+
 use crate::geom::Ray;
 
 #[derive(Debug)]
@@ -64,14 +66,55 @@ impl Evaluator {
     where
         F: FnMut(PrimId) -> PrimHits,
     {
+        let culled = |n: NodeId| cull && tree.cull_bounds[n.index()].ray_interval(ray).is_none();
+        // Both closures count; they never run at the same time.
+        let (visited, skipped) = (Cell::new(0u64), Cell::new(0u64));
+        let count = |out: bool| {
+            let c = if out { &skipped } else { &visited };
+            c.set(c.get() + 1);
+            out
+        };
+        self.evaluate_with(
+            tree,
+            root,
+            |n, p| {
+                if count(culled(n)) {
+                    PrimHits::Miss
+                } else {
+                    prim_hits(p)
+                }
+            },
+            |n| count(culled(n)),
+        );
+        counts.nodes_visited += visited.get();
+        counts.nodes_culled += skipped.get();
+        &self.results[0]
+    }
+
+    /// The span list of `tree` from `root`, with the caller deciding per
+    /// node: `leaf(node, prim)` gives a leaf's crossings (`Miss` for a leaf
+    /// it culls), and `op_culled(node)` says an operator contributes
+    /// nothing. For accelerators that keep per-ray caches of both (the
+    /// cells' mailboxes, section 8). Culling must never change the result.
+    pub fn evaluate_with<L, O>(
+        &mut self,
+        tree: &CsgTree,
+        root: NodeId,
+        mut leaf: L,
+        mut op_culled: O,
+    ) -> &SpanList
+    where
+        L: FnMut(NodeId, PrimId) -> PrimHits,
+        O: FnMut(NodeId) -> bool,
+    {
         self.top = 0;
         self.frames.clear();
-        self.enter(tree, root, ray, cull, counts, &mut prim_hits);
+        self.enter(tree, root, &mut leaf, &mut op_culled);
         while let Some(f) = self.frames.last_mut() {
-            let CsgNode::Op { op, .. } = tree.nodes[f.node.index()] else {
+            let CsgNode::Op { op, first, len } = tree.nodes[f.node.index()] else {
                 unreachable!("only operators get frames")
             };
-            let children = tree.children_of(f.node);
+            let children = &tree.children[first as usize..(first + len) as usize];
             if f.next_child > 0 {
                 let last_empty = self.results[self.top - 1].is_empty();
                 let first = f.next_child == 1;
@@ -92,7 +135,7 @@ impl Evaluator {
             if f.next_child < children.len() {
                 let c = children[f.next_child];
                 f.next_child += 1;
-                self.enter(tree, c, ray, cull, counts, &mut prim_hits);
+                self.enter(tree, c, &mut leaf, &mut op_culled);
                 continue;
             }
             let base = f.base;
@@ -101,7 +144,12 @@ impl Evaluator {
             if n == 0 {
                 self.push_result();
             } else if n > 1 {
-                combine(op, &self.results[base..self.top], &mut self.tmp, &mut self.scratch);
+                combine(
+                    op,
+                    &self.results[base..self.top],
+                    &mut self.tmp,
+                    &mut self.scratch,
+                );
                 std::mem::swap(&mut self.results[base], &mut self.tmp);
                 self.top = base + 1;
             }
@@ -111,27 +159,34 @@ impl Evaluator {
         &self.results[0]
     }
 
-    fn enter<F>(&mut self, tree: &CsgTree, node: NodeId, ray: &Ray, cull: bool, counts: &mut EvalCounts, prim_hits: &mut F)
+    /// The result of the last evaluation (until the next one).
+    pub fn last_result(&self) -> &SpanList {
+        &self.results[0]
+    }
+
+    #[inline]
+    fn enter<L, O>(&mut self, tree: &CsgTree, node: NodeId, leaf: &mut L, op_culled: &mut O)
     where
-        F: FnMut(PrimId) -> PrimHits,
+        L: FnMut(NodeId, PrimId) -> PrimHits,
+        O: FnMut(NodeId) -> bool,
     {
-        if cull && tree.cull_bounds[node.index()].ray_interval(ray).is_none() {
-            counts.nodes_culled += 1;
-            self.push_result();
-            return;
-        }
-        counts.nodes_visited += 1;
-        match &tree.nodes[node.index()] {
+        match tree.nodes[node.index()] {
             CsgNode::Leaf(p) => {
-                let hits = prim_hits(*p);
+                let hits = leaf(node, p);
                 let out = self.push_result();
-                push_prim_hits(out, *p, &hits);
+                push_prim_hits(out, p, &hits);
             }
-            CsgNode::Op { .. } => self.frames.push(Frame {
-                node,
-                next_child: 0,
-                base: self.top,
-            }),
+            CsgNode::Op { .. } => {
+                if op_culled(node) {
+                    self.push_result();
+                } else {
+                    self.frames.push(Frame {
+                        node,
+                        next_child: 0,
+                        base: self.top,
+                    })
+                }
+            }
         }
     }
 }

@@ -119,8 +119,18 @@ pub fn combine(op: Op, children: &[SpanList], out: &mut SpanList, scratch: &mut 
             let mut exit = s.exit;
             enter.flip ^= flip;
             exit.flip ^= flip;
-            events.push(Event { t: enter.t, child: i as u32, delta: 1, boundary: enter });
-            events.push(Event { t: exit.t, child: i as u32, delta: -1, boundary: exit });
+            events.push(Event {
+                t: enter.t,
+                child: i as u32,
+                delta: 1,
+                boundary: enter,
+            });
+            events.push(Event {
+                t: exit.t,
+                child: i as u32,
+                delta: -1,
+                boundary: exit,
+            });
         }
     }
     // Stable sort by t keeps, among equal t, the order (child, span order),

@@ -75,7 +75,9 @@ impl CsgTree {
     pub fn children_of(&self, node: NodeId) -> &[NodeId] {
         match self.nodes[node.index()] {
             CsgNode::Leaf(_) => &[],
-            CsgNode::Op { first, len, .. } => &self.children[first as usize..(first + len) as usize],
+            CsgNode::Op { first, len, .. } => {
+                &self.children[first as usize..(first + len) as usize]
+            }
         }
     }
 
@@ -125,7 +127,10 @@ impl CsgTree {
             let b = match self.nodes[i] {
                 CsgNode::Leaf(p) => prims[p.index()].bounds,
                 CsgNode::Op { op, .. } => {
-                    let mut it = self.children_of(NodeId(i as u32)).iter().map(|c| self.bounds[c.index()]);
+                    let mut it = self
+                        .children_of(NodeId(i as u32))
+                        .iter()
+                        .map(|c| self.bounds[c.index()]);
                     match op {
                         Op::Union | Op::Assembly => it.fold(Aabb::EMPTY, |a, b| a.union(&b)),
                         Op::Intersection => it.fold(Aabb::EVERYTHING, |a, b| a.intersect(&b)),

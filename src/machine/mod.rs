@@ -5,4 +5,4 @@
 pub mod routing;
 pub mod topology;
 
-pub use topology::{parse_size, Topology};
+pub use topology::{Topology, parse_size};

@@ -70,7 +70,9 @@ impl Topology {
     pub fn with_overrides(mut self, dim: Option<u32>, memory: Option<u64>) -> Result<Topology> {
         if let Some(d) = dim {
             if d > MAX_DIMENSION {
-                return Err(Error::Usage(format!("--dim must be at most {MAX_DIMENSION}, got {d}")));
+                return Err(Error::Usage(format!(
+                    "--dim must be at most {MAX_DIMENSION}, got {d}"
+                )));
             }
             self.dimension = d;
         }
@@ -83,28 +85,53 @@ impl Topology {
 
 /// Parses and validates topology text; `file` names it in messages.
 pub fn parse_topology(text: &str, file: &Path) -> Result<Topology> {
-    let t: TopologyFile = ron::Options::default().from_str(text).map_err(|e| Error::Syntax {
-        file: file.to_path_buf(),
-        line: e.span.start.line,
-        column: e.span.start.col,
-        message: e.code.to_string(),
-    })?;
+    let t: TopologyFile = ron::Options::default()
+        .from_str(text)
+        .map_err(|e| Error::Syntax {
+            file: file.to_path_buf(),
+            line: e.span.start.line,
+            column: e.span.start.col,
+            message: e.code.to_string(),
+        })?;
     let bad = |field: &str, message: String| Error::invalid(file, field, message);
     if t.dimension > MAX_DIMENSION {
-        return Err(bad("dimension", format!("dimension must be at most {MAX_DIMENSION}, got {}", t.dimension)));
+        return Err(bad(
+            "dimension",
+            format!(
+                "dimension must be at most {MAX_DIMENSION}, got {}",
+                t.dimension
+            ),
+        ));
     }
     let node_memory = parse_size(&t.node_memory).map_err(|m| bad("node_memory", m))?;
     let positive = |field: &str, v: f64| -> Result<f64> {
-        if v.is_finite() && v > 0.0 { Ok(v) } else { Err(bad(field, format!("{field} must be a finite number > 0, got {v}"))) }
+        if v.is_finite() && v > 0.0 {
+            Ok(v)
+        } else {
+            Err(bad(
+                field,
+                format!("{field} must be a finite number > 0, got {v}"),
+            ))
+        }
     };
     let non_negative = |field: &str, v: f64| -> Result<f64> {
-        if v.is_finite() && v >= 0.0 { Ok(v) } else { Err(bad(field, format!("{field} must be a finite number >= 0, got {v}"))) }
+        if v.is_finite() && v >= 0.0 {
+            Ok(v)
+        } else {
+            Err(bad(
+                field,
+                format!("{field} must be a finite number >= 0, got {v}"),
+            ))
+        }
     };
     Ok(Topology {
         name: t.name,
         dimension: t.dimension,
         node_memory,
-        link_bandwidth: positive("link_bandwidth_bytes_per_second", t.link_bandwidth_bytes_per_second)?,
+        link_bandwidth: positive(
+            "link_bandwidth_bytes_per_second",
+            t.link_bandwidth_bytes_per_second,
+        )?,
         link_latency: non_negative("link_latency_seconds", t.link_latency_seconds)?,
         message_overhead: non_negative("message_overhead_seconds", t.message_overhead_seconds)?,
         compute_speed: positive("compute_speed", t.compute_speed)?,
@@ -117,17 +144,25 @@ pub fn parse_size(s: &str) -> std::result::Result<u64, String> {
     let t = s.trim();
     let split = t.find(|c: char| c.is_ascii_alphabetic()).unwrap_or(t.len());
     let (num, unit) = t.split_at(split);
-    let value: f64 = num.trim().parse().map_err(|_| format!("bad memory size {s:?}: expected a number with KiB, MiB, GiB or no unit"))?;
+    let value: f64 = num.trim().parse().map_err(|_| {
+        format!("bad memory size {s:?}: expected a number with KiB, MiB, GiB or no unit")
+    })?;
     let scale = match unit.trim().to_ascii_lowercase().as_str() {
         "" | "b" => 1.0,
         "kib" | "kb" | "k" => 1024.0,
         "mib" | "mb" | "m" => 1024.0 * 1024.0,
         "gib" | "gb" | "g" => 1024.0 * 1024.0 * 1024.0,
-        other => return Err(format!("bad memory size {s:?}: unknown unit {other:?} (use KiB, MiB or GiB)")),
+        other => {
+            return Err(format!(
+                "bad memory size {s:?}: unknown unit {other:?} (use KiB, MiB or GiB)"
+            ));
+        }
     };
     let bytes = value * scale;
     if !(1.0..=1e15).contains(&bytes) {
-        return Err(format!("bad memory size {s:?}: must be between 1 byte and 1 PB"));
+        return Err(format!(
+            "bad memory size {s:?}: must be between 1 byte and 1 PB"
+        ));
     }
     Ok(bytes.round() as u64)
 }
@@ -150,7 +185,9 @@ mod tests {
     #[test]
     fn bundled_topologies_are_valid() {
         for f in ["ipsc-d5", "ipsc-d7", "cluster-d6"] {
-            let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("topology").join(format!("{f}.ron"));
+            let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("topology")
+                .join(format!("{f}.ron"));
             let t = Topology::load(&p).unwrap_or_else(|e| panic!("{e}"));
             assert_eq!(t.name, f);
         }
@@ -160,10 +197,14 @@ mod tests {
 
     #[test]
     fn bad_topologies_name_the_place() {
-        let e = parse_topology("(name: \"x\", dimension: 3)", Path::new("t.ron")).unwrap_err().to_string();
+        let e = parse_topology("(name: \"x\", dimension: 3)", Path::new("t.ron"))
+            .unwrap_err()
+            .to_string();
         assert!(e.starts_with("t.ron:1:"), "{e}");
         let text = IPSC_D5.replace("compute_speed: 0.0000625", "compute_speed: -1.0");
-        let e = parse_topology(&text, Path::new("t.ron")).unwrap_err().to_string();
+        let e = parse_topology(&text, Path::new("t.ron"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("compute_speed"), "{e}");
         let text = IPSC_D5.replace("dimension: 5", "dimension: 40");
         assert!(parse_topology(&text, Path::new("t.ron")).is_err());

@@ -21,7 +21,10 @@ pub enum OutputFormat {
 impl OutputFormat {
     /// The format for `path`'s extension, or a usage error naming it.
     pub fn for_path(path: &Path) -> Result<OutputFormat> {
-        let ext = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase());
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(|e| e.to_ascii_lowercase());
         match ext.as_deref() {
             Some("png") => Ok(OutputFormat::Png),
             Some("ppm") => Ok(OutputFormat::Ppm),
@@ -36,12 +39,24 @@ impl OutputFormat {
 
 /// The sRGB transfer function of a linear value, clamped to [0, 1].
 pub fn srgb_encode(linear: f32) -> f32 {
-    let c = if linear.is_nan() { 0.0 } else { linear.clamp(0.0, 1.0) };
-    if c <= 0.003_130_8 { c * 12.92 } else { 1.055 * c.powf(1.0 / 2.4) - 0.055 }
+    let c = if linear.is_nan() {
+        0.0
+    } else {
+        linear.clamp(0.0, 1.0)
+    };
+    if c <= 0.003_130_8 {
+        c * 12.92
+    } else {
+        1.055 * c.powf(1.0 / 2.4) - 0.055
+    }
 }
 
 fn srgb_decode(v: f32) -> f32 {
-    if v <= 0.040_45 { v / 12.92 } else { ((v + 0.055) / 1.055).powf(2.4) }
+    if v <= 0.040_45 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
 }
 
 /// Display values (sRGB-encoded, in [0, 1]) of linear pixels.
@@ -51,7 +66,10 @@ pub fn to_display(linear: &[[f32; 3]]) -> Vec<[f32; 3]> {
 
 /// 8-bit sRGB bytes of linear pixels.
 pub fn to_srgb8(linear: &[[f32; 3]]) -> Vec<u8> {
-    linear.iter().flat_map(|p| p.map(|c| (srgb_encode(c) * 255.0).round() as u8)).collect()
+    linear
+        .iter()
+        .flat_map(|p| p.map(|c| (srgb_encode(c) * 255.0).round() as u8))
+        .collect()
 }
 
 /// Writes linear pixels to `path` atomically in the format of its extension.
@@ -61,13 +79,19 @@ pub fn write_image(path: &Path, width: u32, height: u32, linear: &[[f32; 3]]) ->
         let mut w = BufWriter::new(file);
         let result = match format {
             OutputFormat::Png | OutputFormat::Ppm => {
-                let img = RgbImage::from_raw(width, height, to_srgb8(linear)).ok_or("image size mismatch")?;
-                let f = if format == OutputFormat::Png { ImageFormat::Png } else { ImageFormat::Pnm };
+                let img = RgbImage::from_raw(width, height, to_srgb8(linear))
+                    .ok_or("image size mismatch")?;
+                let f = if format == OutputFormat::Png {
+                    ImageFormat::Png
+                } else {
+                    ImageFormat::Pnm
+                };
                 img.write_to(&mut w, f)
             }
             OutputFormat::Exr => {
                 let data: Vec<f32> = linear.iter().flatten().copied().collect();
-                let img = Rgb32FImage::from_raw(width, height, data).ok_or("image size mismatch")?;
+                let img =
+                    Rgb32FImage::from_raw(width, height, data).ok_or("image size mismatch")?;
                 img.write_to(&mut w, ImageFormat::OpenExr)
             }
         };
@@ -102,7 +126,9 @@ where
     #[cfg(unix)]
     {
         use std::os::unix::fs::PermissionsExt;
-        let _ = tmp.as_file().set_permissions(std::fs::Permissions::from_mode(0o644));
+        let _ = tmp
+            .as_file()
+            .set_permissions(std::fs::Permissions::from_mode(0o644));
     }
     tmp.persist(path).map_err(|e| err(e.error.to_string()))?;
     Ok(())
@@ -123,7 +149,13 @@ impl DisplayImage {
     /// Display values of linear pixels, rounded as this image was.
     pub fn comparable(&self, linear: &[[f32; 3]]) -> Vec<[f32; 3]> {
         let d = to_display(linear);
-        if self.eight_bit { d.into_iter().map(|p| p.map(|c| (c * 255.0).round() / 255.0)).collect() } else { d }
+        if self.eight_bit {
+            d.into_iter()
+                .map(|p| p.map(|c| (c * 255.0).round() / 255.0))
+                .collect()
+        } else {
+            d
+        }
     }
 }
 
@@ -140,9 +172,15 @@ pub fn read_display_image(path: &Path) -> Result<DisplayImage> {
     let linear_file = matches!(OutputFormat::for_path(path), Ok(OutputFormat::Exr));
     let (w, h) = (img.width(), img.height());
     let px: Vec<[f32; 3]> = if linear_file {
-        img.to_rgb32f().pixels().map(|p| p.0.map(srgb_encode)).collect()
+        img.to_rgb32f()
+            .pixels()
+            .map(|p| p.0.map(srgb_encode))
+            .collect()
     } else {
-        img.to_rgb8().pixels().map(|p| p.0.map(|c| c as f32 / 255.0)).collect()
+        img.to_rgb8()
+            .pixels()
+            .map(|p| p.0.map(|c| c as f32 / 255.0))
+            .collect()
     };
     Ok(DisplayImage {
         width: w,
@@ -174,8 +212,16 @@ pub fn compare(image: &[[f32; 3]], reference: &[[f32; 3]]) -> ImageMetrics {
     }
     let n = (image.len() * 3).max(1) as f64;
     let rmse = (sum / n).sqrt();
-    let psnr = if rmse == 0.0 { f64::INFINITY } else { -20.0 * rmse.log10() };
-    ImageMetrics { rmse, psnr, max_error: max }
+    let psnr = if rmse == 0.0 {
+        f64::INFINITY
+    } else {
+        -20.0 * rmse.log10()
+    };
+    ImageMetrics {
+        rmse,
+        psnr,
+        max_error: max,
+    }
 }
 
 /// Linear values of display values (inverse of `to_display`).

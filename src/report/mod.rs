@@ -7,4 +7,4 @@ pub mod image_io;
 pub mod overlay;
 pub mod stats;
 
-pub use image_io::{compare, read_display_image, write_image, DisplayImage, ImageMetrics};
+pub use image_io::{DisplayImage, ImageMetrics, compare, read_display_image, write_image};

@@ -8,14 +8,25 @@ use crate::trace::CameraFrame;
 /// A heat colour for `v` in [0, 1] (linear RGB).
 fn heat(v: f64) -> [f32; 3] {
     let v = v.clamp(0.0, 1.0) as f32;
-    [v.min(0.5) * 2.0, (1.0 - (2.0 * v - 1.0).abs()).max(0.0), (1.0 - v * 2.0).max(0.0)]
+    [
+        v.min(0.5) * 2.0,
+        (1.0 - (2.0 * v - 1.0).abs()).max(0.0),
+        (1.0 - v * 2.0).max(0.0),
+    ]
 }
 
 /// Draws the super cells of `cs` onto linear pixels `img` (width × height).
 pub fn draw_super_cells(img: &mut [[f32; 3]], cam: &CameraFrame, cs: &CellStructure) {
     let (w, h) = (cam.width as i64, cam.height as i64);
     let front = cs.region(Region::Front);
-    let max = front.partition.leaves.iter().map(|l| l.prims.len()).max().unwrap_or(1).max(1) as f64;
+    let max = front
+        .partition
+        .leaves
+        .iter()
+        .map(|l| l.prims.len())
+        .max()
+        .unwrap_or(1)
+        .max(1) as f64;
     // Screen x/z, y/z to pixel coordinates (pixel centres at +0.5).
     let px = |sx: f64| ((sx / cam.half_w + 1.0) * 0.5 * w as f64).clamp(-1.0, w as f64 + 1.0);
     let py = |sy: f64| ((1.0 - sy / cam.half_h) * 0.5 * h as f64).clamp(-1.0, h as f64 + 1.0);
@@ -26,7 +37,11 @@ pub fn draw_super_cells(img: &mut [[f32; 3]], cam: &CameraFrame, cs: &CellStruct
     };
     for leaf in &front.partition.leaves {
         let r = leaf.rect;
-        let c = if leaf.prims.is_empty() { [0.25, 0.25, 0.25] } else { heat(leaf.prims.len() as f64 / max) };
+        let c = if leaf.prims.is_empty() {
+            [0.25, 0.25, 0.25]
+        } else {
+            heat(leaf.prims.len() as f64 / max)
+        };
         let (x0, x1) = (px(r.x0).round() as i64, px(r.x1).round() as i64);
         let (y0, y1) = (py(r.y1).round() as i64, py(r.y0).round() as i64);
         for x in x0..=x1 {

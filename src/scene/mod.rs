@@ -7,7 +7,7 @@ pub mod load;
 pub mod model;
 pub mod nff;
 
-pub use load::{load_scene, parse_scene_str, SceneSyntax};
+pub use load::{SceneSyntax, load_scene, parse_scene_str};
 
 use crate::csg::{CsgTree, Primitive};
 use crate::geom::{Color, Vec3};

@@ -36,7 +36,11 @@ impl Film {
         // `as` saturates; NaN would become 0, but shading never produces it
         // (tests assert so).
         debug_assert!(c.is_finite(), "non-finite contribution {c}");
-        [(c.x * SCALE).round() as i64, (c.y * SCALE).round() as i64, (c.z * SCALE).round() as i64]
+        [
+            (c.x * SCALE).round() as i64,
+            (c.y * SCALE).round() as i64,
+            (c.z * SCALE).round() as i64,
+        ]
     }
 
     /// Adds a contribution to the global pixel index `pixel`.
@@ -66,7 +70,13 @@ impl Film {
     pub fn to_linear(&self) -> Vec<[f32; 3]> {
         self.sums
             .iter()
-            .map(|s| [(s[0] as f64 / SCALE) as f32, (s[1] as f64 / SCALE) as f32, (s[2] as f64 / SCALE) as f32])
+            .map(|s| {
+                [
+                    (s[0] as f64 / SCALE) as f32,
+                    (s[1] as f64 / SCALE) as f32,
+                    (s[2] as f64 / SCALE) as f32,
+                ]
+            })
             .collect()
     }
 

@@ -16,7 +16,7 @@ mod film;
 mod optics;
 
 pub use film::Film;
-pub use optics::{offset_origin, reflect, refract, Refraction};
+pub use optics::{Refraction, offset_origin, reflect, refract};
 
 use crate::csg::{Boundary, PrimId};
 use crate::geom::{Color, Ray, Vec3};
@@ -32,7 +32,12 @@ pub enum RayKind {
 }
 
 impl RayKind {
-    pub const ALL: [RayKind; 4] = [RayKind::Primary, RayKind::Shadow, RayKind::Reflected, RayKind::Refracted];
+    pub const ALL: [RayKind; 4] = [
+        RayKind::Primary,
+        RayKind::Shadow,
+        RayKind::Reflected,
+        RayKind::Refracted,
+    ];
 
     pub fn index(self) -> usize {
         self as usize
@@ -68,7 +73,11 @@ pub struct RayJob {
 
 impl RayJob {
     pub fn weight(&self) -> Color {
-        Color::new(self.weight[0] as f64, self.weight[1] as f64, self.weight[2] as f64)
+        Color::new(
+            self.weight[0] as f64,
+            self.weight[1] as f64,
+            self.weight[2] as f64,
+        )
     }
 }
 
@@ -153,7 +162,9 @@ impl<'a> Shader<'a> {
     /// A shadow ray crossing a surface: attenuate by its material's
     /// `transmit`. Returns false when nothing is left to deliver.
     pub fn shadow_crossing(&self, job: &mut RayJob, hit: &Hit) -> bool {
-        let m = self.scene.material(self.scene.primitives[hit.prim.index()].material);
+        let m = self
+            .scene
+            .material(self.scene.primitives[hit.prim.index()].material);
         let w = job.weight() * m.transmit;
         job.weight = to_weight(w);
         job.weight.iter().any(|&c| c > 0.0)
@@ -247,7 +258,14 @@ impl<'a> Shader<'a> {
     /// Traces one job to completion on a synchronous tracer, depth first,
     /// delivering contributions to `film`. Used by single-node renders; the
     /// hypercube runs the same rules one message at a time.
-    pub fn run_path(&self, tracer: &mut impl Tracer, first: RayJob, film: &mut Film, counts: &mut RayCounts, stack: &mut Vec<RayJob>) {
+    pub fn run_path(
+        &self,
+        tracer: &mut impl Tracer,
+        first: RayJob,
+        film: &mut Film,
+        counts: &mut RayCounts,
+        stack: &mut Vec<RayJob>,
+    ) {
         stack.clear();
         stack.push(first);
         while let Some(mut job) = stack.pop() {

@@ -11,7 +11,10 @@ fn bundled() -> Vec<std::path::PathBuf> {
     for dir in ["scenes", "scenes/small"] {
         for e in std::fs::read_dir(repo(dir)).expect("scenes folder") {
             let p = e.expect("dir entry").path();
-            if matches!(p.extension().and_then(|e| e.to_str()), Some("ron" | "json" | "nff")) {
+            if matches!(
+                p.extension().and_then(|e| e.to_str()),
+                Some("ron" | "json" | "nff")
+            ) {
                 v.push(p);
             }
         }
@@ -29,7 +32,18 @@ fn every_bundled_scene_renders_identically_with_cells_and_roth() {
         let (w, h) = (96, (96 * scene.camera.height / scene.camera.width).max(1));
         let (a, _) = roth(&scene, w, h);
         let (b, _) = cells(&scene, w, h);
-        let diff = a.sums().iter().zip(b.sums()).filter(|(x, y)| x != y).count();
-        assert_eq!(diff, 0, "{}: {diff} of {} pixels differ between cells and roth", path.display(), w * h);
+        let diff = a
+            .sums()
+            .iter()
+            .zip(b.sums())
+            .filter(|(x, y)| x != y)
+            .count();
+        assert_eq!(
+            diff,
+            0,
+            "{}: {diff} of {} pixels differ between cells and roth",
+            path.display(),
+            w * h
+        );
     }
 }
