@@ -347,10 +347,7 @@ impl Cost {
             b.y1 = b.y1.min(w.y1 + my);
         }
         let size = (b.x1 - b.x0).max(b.y1 - b.y0);
-        let pf: f64 = std::env::var("HC_PERIM")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(PERIMETER);
+        let pf: f64 = PERIMETER;
         let perimeter = if size.is_finite() && size > 0.0 {
             pf * size
         } else {
@@ -392,10 +389,7 @@ impl Cost {
             return None;
         }
         let mut best: (f64, Option<(u8, f64)>) = (f64::INFINITY, None);
-        let traverse: f64 = std::env::var("HC_TRAV")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(TRAVERSE);
+        let traverse: f64 = TRAVERSE;
         let mut leaf = 0.0;
         for axis in 0..2 {
             let (los, his) = (&mut scratch.los, &mut scratch.his);

@@ -198,10 +198,7 @@ impl CellStructure {
                     (a.min(p.1), b.max(p.2))
                 });
             let extent = zmax - zmin;
-            let all: f64 = std::env::var("HC_WALL")
-                .ok()
-                .and_then(|v| v.parse().ok())
-                .unwrap_or(0.2);
+            let all: f64 = 0.2;
             let weights: Vec<f64> = projected
                 .iter()
                 .map(|p| match p {
@@ -496,16 +493,10 @@ const DEPTH_STEP: f64 = 1.0;
 
 impl DepthCost {
     fn new(extent: f64) -> Self {
-        let env = |k: &str, d: f64| {
-            std::env::var(k)
-                .ok()
-                .and_then(|v| v.parse().ok())
-                .unwrap_or(d)
-        };
         DepthCost {
             extent,
-            all: env("HC_DALL", DEPTH_ALL),
-            step: env("HC_DSTEP", DEPTH_STEP),
+            all: DEPTH_ALL,
+            step: DEPTH_STEP,
         }
     }
 
