@@ -35,6 +35,11 @@ pub enum Error {
     /// Occurs when command-line options are inconsistent or out of range.
     #[error("{0}")]
     Usage(String),
+    /// Occurs when a scene's share of the cell structure, with room for the
+    /// rays in flight, does not fit a node's memory budget: refused before
+    /// rendering, with the numbers and what to change.
+    #[error("{0}")]
+    Capacity(String),
     /// Occurs when a render or experiment fails after its input was accepted
     /// (a node failed, a budget could not be met at run time).
     #[error("{0}")]
@@ -49,9 +54,11 @@ impl Error {
     pub fn exit_code(&self) -> i32 {
         match self {
             Error::Render(_) | Error::Write { .. } => 1,
-            Error::Read { .. } | Error::Syntax { .. } | Error::Invalid { .. } | Error::Usage(_) => {
-                2
-            }
+            Error::Read { .. }
+            | Error::Syntax { .. }
+            | Error::Invalid { .. }
+            | Error::Usage(_)
+            | Error::Capacity(_) => 2,
         }
     }
 

@@ -13,7 +13,7 @@ pub type Color = DVec3;
 
 /// A ray `origin + t·dir`. `dir` need not be unit length; every `t` in the
 /// crate is measured in units of `dir`.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Ray {
     pub origin: Vec3,
     pub dir: Vec3,
@@ -33,7 +33,7 @@ impl Ray {
 
 /// An axis-aligned box, closed on every side. A box with `min > max` on any
 /// axis is empty; `Aabb::EMPTY` is the identity of `union`.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Aabb {
     pub min: Vec3,
     pub max: Vec3,
@@ -167,7 +167,7 @@ impl Aabb {
 /// An affine map `p ↦ M·p + t` with its inverse and the normal matrix
 /// (inverse transpose of `M`), so that normals map correctly under
 /// non-uniform scale.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Affine {
     pub linear: DMat3,
     pub translation: Vec3,

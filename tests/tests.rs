@@ -11,6 +11,8 @@ mod cli;
 mod csg_props;
 #[path = "it/known_answer.rs"]
 mod known_answer;
+#[path = "it/machine.rs"]
+mod machine;
 #[path = "it/shading.rs"]
 mod shading;
 

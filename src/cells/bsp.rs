@@ -45,7 +45,7 @@ struct Seg {
 }
 
 /// A node of the BSP, kept for locating points without a hint.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum BspNode {
     /// Points with `screen[axis] < c` (ties by direction) go to `lo`.
     Split {
@@ -75,7 +75,7 @@ pub mod stitch {
 /// A leaf of the partition: a rectangle and the rectangles (primitives)
 /// covering it. Every listed rectangle covers the whole leaf unless the
 /// subdivision was stopped early.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Leaf {
     pub rect: Rect,
     pub prims: Vec<u32>,
@@ -84,7 +84,7 @@ pub struct Leaf {
 }
 
 /// The partition of the screen plane.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct Partition {
     pub nodes: Vec<BspNode>,
     pub leaves: Vec<Leaf>,

@@ -7,6 +7,7 @@
 
 pub mod bsp;
 pub mod projection;
+pub mod share;
 pub mod subtree;
 pub mod traverse;
 
@@ -18,15 +19,19 @@ use crate::geom::Aabb;
 use crate::scene::Scene;
 use crate::trace::CameraFrame;
 
-pub use bsp::{Partition, SegmentChoice};
+pub use bsp::{BspNode, Partition, SegmentChoice};
 pub use projection::{CamBox, CamRay, Rect, Region, View};
-pub use traverse::CellTracer;
+pub use traverse::{CellTracer, Walk, WalkPoint};
 
 /// No subtree: the cell is empty.
 pub const NO_SUBTREE: u32 = u32::MAX;
 
+/// The cell holds primitives, but its subtree lives on another node of the
+/// machine (`CellStructure::restrict`): a walk that reaches it stops there.
+pub const REMOTE: u32 = u32::MAX - 1;
+
 /// A cell: a slab `[zlo, zhi)` in depth of a super cell (section 3.3).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Cell {
     pub zlo: f64,
     pub zhi: f64,
@@ -43,7 +48,7 @@ pub struct Cell {
 /// the partition's `Leaf::rect` and `Leaf::stitches`, without the primitive
 /// list, so that the corner-stitch walk of figure 13 touches one line per
 /// super cell (the 88-byte `Leaf`s with their list pointers straddled two).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[repr(C, align(64))]
 pub struct SuperCell {
     pub rect: Rect,
@@ -53,7 +58,7 @@ pub struct SuperCell {
 /// The cells of one region: its screen partition (super cells with their
 /// corner pointers) and each super cell's cells, front to back. The front
 /// and back pointers of a cell are implicit: its neighbours in `cells`.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct RegionCells {
     pub region: Region,
     pub partition: Partition,
@@ -103,7 +108,7 @@ pub struct CellOptions {
 }
 
 /// Counts that describe a built structure (`--stats`, `inspect`).
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct BuildStats {
     pub build_seconds: f64,
     pub super_cells: usize,
@@ -125,7 +130,7 @@ pub struct BuildStats {
 }
 
 /// The whole subdivision of a scene for one camera.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct CellStructure {
     pub view: View,
     pub regions: [RegionCells; 2],
@@ -134,6 +139,9 @@ pub struct CellStructure {
     /// Per node of `subtrees`, the scene tree node it stands for (mailboxes
     /// of culling results are kept per scene node, `traverse`).
     pub origin: Vec<u32>,
+    /// One more than the largest value in `origin`: the number of
+    /// operator mailboxes a tracer keeps.
+    pub origin_count: usize,
     /// Per cell subtree (indexed by its root in `subtrees`), its leaves in
     /// `subtree_leaves[leaf_span[root][0]..leaf_span[root][1]]`.
     pub leaf_span: Vec<[u32; 2]>,
@@ -278,6 +286,7 @@ impl CellStructure {
             regions,
             subtrees,
             origin,
+            origin_count: tree.nodes.len(),
             leaf_span,
             subtree_leaves,
             scene_box,
@@ -364,7 +373,7 @@ impl CellStructure {
 /// primitive, and whether it is the subtree's result when it is the only
 /// leaf with anything along the ray (every operator above it is a union or
 /// an assembly, or a difference of which it is in the first operand).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct SubtreeLeaf {
     pub node: u32,
     pub prim: u32,

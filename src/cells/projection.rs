@@ -21,7 +21,7 @@ use crate::geom::{Aabb, Ray, Vec3};
 use crate::trace::CameraFrame;
 
 /// Which half of space a structure covers.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 pub enum Region {
     Front,
     Back,
@@ -41,7 +41,7 @@ impl Region {
 
 /// A 2D half-open rectangle `[x0, x1) × [y0, y1)` of the screen plane;
 /// bounds may be infinite (the plane is infinite, section 3.2).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Rect {
     pub x0: f64,
     pub x1: f64,
@@ -86,7 +86,7 @@ pub fn contains(lo: f64, hi: f64, q: f64, m: f64) -> bool {
 }
 
 /// The camera frame in which cells are axis-aligned.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 pub struct View {
     pub eye: Vec3,
     pub right: Vec3,

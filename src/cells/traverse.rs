@@ -16,7 +16,7 @@
 
 use super::bsp::stitch;
 use super::projection::{CamRay, Region, contains};
-use super::{CellStructure, NO_SUBTREE, RegionCells, SubtreeLeaf};
+use super::{CellStructure, NO_SUBTREE, REMOTE, RegionCells, SubtreeLeaf};
 use crate::csg::{Crossing, EvalCounts, Evaluator, NodeId, PrimHits, PrimId};
 use crate::geom::{Aabb, Ray, Vec3};
 use crate::render::TraceCounters;
@@ -453,6 +453,8 @@ pub struct CellTracer<'a> {
     hint: [u32; 2],
     pub counters: TraceCounters,
     pub eval_counts: EvalCounts,
+    /// Work per super cell, when recording (`record_work`).
+    profile: Option<Box<[Vec<u64>; 2]>>,
 }
 
 impl<'a> CellTracer<'a> {
@@ -463,14 +465,15 @@ impl<'a> CellTracer<'a> {
             eval: Evaluator::new(),
             mailboxes: vec![Mailbox::of(0, &PrimHits::Miss); scene.primitives.len()],
             hits: vec![PrimHits::Miss; scene.primitives.len()],
-            op_ray: vec![0; scene.tree.nodes.len()],
-            op_culled: vec![false; scene.tree.nodes.len()],
+            op_ray: vec![0; cs.origin_count],
+            op_culled: vec![false; cs.origin_count],
             ray_id: 0,
             last_ray: None,
             slab: SlabRay::new(&Ray::new(Vec3::ZERO, Vec3::Z)),
             hint: [u32::MAX; 2],
             counters: TraceCounters::default(),
             eval_counts: EvalCounts::default(),
+            profile: None,
         }
     }
 
@@ -643,22 +646,84 @@ fn prev_float(t: f64) -> f64 {
     if t.is_finite() { t.next_down() } else { t }
 }
 
+impl CellStructure {
+    /// The front super cell a primary ray (from the eye) stays in: the
+    /// pixel area its sample belongs to (section 3.2).
+    pub fn primary_super_cell(&self, ray: &Ray) -> u32 {
+        let cam = self.view.ray(ray);
+        let rr = RegionRay::new(Region::Front, cam);
+        let (sx, sy, _) = cam.screen_at(Region::Front, 0.0);
+        self.region(Region::Front)
+            .partition
+            .locate(sx, sy, rr.m[0], rr.m[1])
+    }
+}
+
 impl CellTracer<'_> {
     /// True when a primary job's super cell holds no primitive, so its
     /// sample is background without tracing (section 3.2's pixel areas).
     pub fn primary_is_background(cs: &CellStructure, ray: &Ray) -> bool {
-        let cam = cs.view.ray(ray);
-        let rr = RegionRay::new(Region::Front, cam);
-        let (sx, sy, _) = cam.screen_at(Region::Front, 0.0);
-        let front = cs.region(Region::Front);
-        front.super_cell_is_empty(front.partition.locate(sx, sy, rr.m[0], rr.m[1]))
+        cs.region(Region::Front)
+            .super_cell_is_empty(cs.primary_super_cell(ray))
+    }
+
+    /// Bytes a tracer over `cs` and `scene` keeps: a mailbox and the
+    /// crossings per primitive, an operator mailbox per scene node.
+    pub fn bytes_for(cs: &CellStructure, scene: &Scene) -> usize {
+        use std::mem::size_of;
+        scene.primitives.len() * (size_of::<Mailbox>() + size_of::<PrimHits>())
+            + cs.origin_count * (size_of::<u64>() + size_of::<bool>())
+    }
+
+    /// Starts recording, per super cell of each region, the work done in
+    /// its cells (a cell entered counts 1, an intersection test 3): the
+    /// machine's cost-estimating pre-pass.
+    pub fn record_work(&mut self) {
+        self.profile = Some(Box::new(
+            Region::BOTH.map(|r| vec![0u64; self.cs.region(r).supers.len()]),
+        ));
+    }
+
+    /// The work recorded since `record_work`.
+    pub fn recorded_work(&self) -> Option<&[Vec<u64>; 2]> {
+        self.profile.as_deref()
     }
 }
 
-impl Tracer for CellTracer<'_> {
-    fn nearest(&mut self, ray: &Ray, t_min: f64, t_max: f64) -> Option<Hit> {
+/// Where a walk stands when it reaches a cell held by another node: the
+/// cell, and the parameter at which the ray entered it. With the ray and
+/// its `t_min`/`t_max`, everything else of the walk is recomputed from it,
+/// identically on every node.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct WalkPoint {
+    pub region: Region,
+    pub super_cell: u32,
+    pub cell: u32,
+    pub t_in: f64,
+}
+
+/// How a walk through the cells a tracer holds ends.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Walk {
+    /// The nearest boundary.
+    Hit(Hit),
+    /// Nothing below `t_max`.
+    Miss,
+    /// The ray reached a cell whose subtree is on another node
+    /// (`CellStructure::restrict`); the walk resumes there.
+    Remote(WalkPoint),
+}
+
+impl CellTracer<'_> {
+    /// The walk of section 7 for the boundaries with `t_min < t < t_max`,
+    /// from the ray's start (`from` = None) or resumed at a cell another
+    /// node stopped at. On a whole structure it never returns `Remote`, and
+    /// a walk split over several nodes visits the same cells with the same
+    /// `t` as one walk, so it finds the same boundary.
+    pub fn walk(&mut self, ray: &Ray, t_min: f64, t_max: f64, from: Option<WalkPoint>) -> Walk {
         // A new ray number unless this is the same ray again (shadow rays
-        // ask repeatedly, past each surface they cross).
+        // ask repeatedly, past each surface they cross; a mailbox keyed by
+        // an equal ray holds that ray's answers, so reuse is exact).
         if self.last_ray != Some(*ray) {
             self.ray_id += 1;
             self.last_ray = Some(*ray);
@@ -668,18 +733,22 @@ impl Tracer for CellTracer<'_> {
         // nothing lies outside it. The ray is followed only over its part
         // inside that box (padded in t, so rounding cannot cut a boundary
         // off); a ray that misses it meets nothing.
-        let (b0, b1) = self.slab.interval(&self.cs.scene_box, ray)?;
+        let Some((b0, b1)) = self.slab.interval(&self.cs.scene_box, ray) else {
+            return Walk::Miss;
+        };
         let pad = (b0.abs() + b1.abs()) * 1e-9;
         let (t_min_box, t_max_box) = (t_min.max(b0 - pad), t_max.min(b1 + pad));
         if t_min_box.partial_cmp(&t_max_box) != Some(std::cmp::Ordering::Less) {
-            return None;
+            return Walk::Miss;
         }
         let cam = self.cs.view.ray(ray);
         let mut order = [Region::Front, Region::Back];
         if cam.d.z > 0.0 {
             order.swap(0, 1);
         }
-        for region in order {
+        let mut from = from;
+        let first = from.map_or(0, |p| usize::from(order[0] != p.region));
+        for &region in &order[first..] {
             let (lo, hi) = cam.region_interval(region);
             let lo = lo.max(t_min_box);
             let hi = hi.min(t_max_box);
@@ -688,9 +757,14 @@ impl Tracer for CellTracer<'_> {
             }
             let rc = self.cs.region(region);
             let rr = RegionRay::new(region, cam);
-            let (mut s, mut k) = rc.locate(&rr, lo, self.hint[region as usize]);
+            let (mut s, mut k, mut t_in) = match from.take_if(|p| p.region == region) {
+                Some(p) => (p.super_cell, p.cell, p.t_in),
+                None => {
+                    let (s, k) = rc.locate(&rr, lo, self.hint[region as usize]);
+                    (s, k, lo)
+                }
+            };
             self.hint[region as usize] = s;
-            let mut t_in = lo;
             // The walk is monotone in every screen axis and depth, so it
             // ends; the guard only turns a bug into a miss, never a hang.
             let mut guard = rc.cells.len() + 2;
@@ -700,16 +774,31 @@ impl Tracer for CellTracer<'_> {
                 if guard == 0 {
                     break;
                 }
+                let subtree = rc.cells[k as usize].subtree;
+                if subtree == REMOTE {
+                    return Walk::Remote(WalkPoint {
+                        region,
+                        super_cell: s,
+                        cell: k,
+                        t_in,
+                    });
+                }
                 let (t_out, next) = rc.exit(&rr, s, k, t_in);
                 self.counters.cells_visited += 1;
-                let subtree = rc.cells[k as usize].subtree;
                 let t_end = t_out.min(hi);
-                if subtree != NO_SUBTREE
-                    && t_end >= t_in
-                    && let Some(h) = self.in_cell(subtree, ray, t_min.max(prev_float(t_in)), t_end)
-                {
+                let tests = self.counters.intersection_tests;
+                let hit = if subtree != NO_SUBTREE && t_end >= t_in {
+                    self.in_cell(subtree, ray, t_min.max(prev_float(t_in)), t_end)
+                } else {
+                    None
+                };
+                if let Some(p) = &mut self.profile {
+                    p[region as usize][s as usize] +=
+                        1 + 3 * (self.counters.intersection_tests - tests);
+                }
+                if let Some(h) = hit {
                     self.hint[region as usize] = s;
-                    return Some(h);
+                    return Walk::Hit(h);
                 }
                 match next {
                     Some((s2, k2)) if t_out < hi => {
@@ -721,7 +810,18 @@ impl Tracer for CellTracer<'_> {
                 }
             }
         }
-        None
+        Walk::Miss
+    }
+}
+
+impl Tracer for CellTracer<'_> {
+    fn nearest(&mut self, ray: &Ray, t_min: f64, t_max: f64) -> Option<Hit> {
+        match self.walk(ray, t_min, t_max, None) {
+            Walk::Hit(h) => Some(h),
+            Walk::Miss => None,
+            // A restricted structure is walked with `walk`, never here.
+            Walk::Remote(_) => None,
+        }
     }
 
     fn counters(&self) -> TraceCounters {

@@ -14,7 +14,19 @@ pub use span::{Boundary, Span, SpanList};
 pub use tree::{CsgNode, CsgTree, NodeId, Op};
 
 /// Index of a primitive in `Scene::primitives`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Default)]
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    PartialEq,
+    Eq,
+    PartialOrd,
+    Ord,
+    Hash,
+    Default,
+    serde::Serialize,
+    serde::Deserialize,
+)]
 pub struct PrimId(pub u32);
 
 impl PrimId {

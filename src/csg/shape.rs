@@ -27,7 +27,7 @@ use crate::scene::MaterialId;
 use glam::DMat3;
 
 /// A primitive's geometry in its own coordinates.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum Shape {
     /// Parts: 0 the surface.
     Sphere { center: Vec3, radius: f64 },
@@ -55,7 +55,7 @@ pub enum Shape {
 }
 
 /// A planar polygon (convex or not) with its triangulation.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Polygon {
     pub vertices: Vec<Vec3>,
     /// Indices into `vertices`, three per triangle.
@@ -89,7 +89,7 @@ pub enum PrimHits {
 }
 
 /// A primitive placed in the world.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Primitive {
     pub shape: Shape,
     /// Object-to-world map; `None` when `shape` is already in world

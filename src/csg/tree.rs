@@ -5,7 +5,7 @@ use super::{PrimId, Primitive};
 use crate::geom::Aabb;
 
 /// Index of a node in `CsgTree::nodes`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 pub struct NodeId(pub u32);
 
 impl NodeId {
@@ -15,7 +15,7 @@ impl NodeId {
 }
 
 /// The operators of `SCENE_FORMAT.md`, all n-ary.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 pub enum Op {
     Union,
     Intersection,
@@ -31,7 +31,7 @@ pub enum Op {
 /// A node: a primitive leaf, or an operator whose children are
 /// `CsgTree::children[first..first + len]` (flat, so that thousands of
 /// per-cell subtrees cost no allocation each).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum CsgNode {
     Leaf(PrimId),
     Op { op: Op, first: u32, len: u32 },
@@ -39,7 +39,7 @@ pub enum CsgNode {
 
 /// A CSG tree. Nodes are stored children-before-parents, so a forward pass
 /// is a post-order traversal (no recursion: trees may be 10,000 levels deep).
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct CsgTree {
     pub nodes: Vec<CsgNode>,
     /// Operators' children, referenced by `CsgNode::Op::first/len`.

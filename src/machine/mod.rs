@@ -1,8 +1,25 @@
-//! The emulated hypercube multicomputer of the paper's closing plan: the
-//! topology of the modelled machine (`topology`) and its routing. Reads the
-//! cell structure and the shading rules; owns nodes, links and messages.
+//! The emulated hypercube multicomputer of the paper's closing plan (section
+//! 10: the cell structure distributed over an iPSC-D5 of 32 nodes with 4.5
+//! MB each). Owns nodes, links, messages and the modelled machine's time;
+//! reads the cell structure (`cells`) and the shading rules (`trace`).
+//!
+//! * `topology`: the modelled machine (dimension, memory, links, speed);
+//! * `routing`: e-cube routing and Gray codes;
+//! * `mapping`: which node owns which super cell (cost pre-pass, Gray codes);
+//! * `message` and `codec`: what travels, and its bytes (bincode 2);
+//! * `transport`: links as a small trait, with in-process channels;
+//! * `node`: a node's loop (tracing, routing, flow control, memory, clock);
+//! * `host`: the coordinator (loading, credits, exact termination).
 
+pub mod codec;
+pub mod host;
+pub mod mapping;
+pub mod message;
+pub mod node;
 pub mod routing;
 pub mod topology;
+pub mod transport;
 
+pub use host::{DEFAULT_CAPACITY, MachineOptions, MachineStats, render};
+pub use mapping::Mapping;
 pub use topology::{Topology, parse_size};

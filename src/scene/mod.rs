@@ -18,7 +18,9 @@ pub const MAX_DEPTH_LIMIT: u32 = 64;
 
 /// Index into `Scene::materials`. `MaterialId::DEFAULT` is the default
 /// material of `SCENE_FORMAT.md`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize,
+)]
 pub struct MaterialId(pub u32);
 
 impl MaterialId {
@@ -29,7 +31,7 @@ impl MaterialId {
 }
 
 /// A pinhole camera (`SCENE_FORMAT.md`).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Camera {
     pub eye: Vec3,
     pub look_at: Vec3,
@@ -41,14 +43,14 @@ pub struct Camera {
 }
 
 /// A point light; not attenuated with distance.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Light {
     pub position: Vec3,
     pub color: Color,
 }
 
 /// Whitted's material (`SCENE_FORMAT.md`).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Material {
     pub color: Color,
     pub ambient: f64,
@@ -77,7 +79,7 @@ impl Default for Material {
 
 /// A validated scene, ready to render. `tree`'s leaves index `primitives`;
 /// primitives index `materials`.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Scene {
     pub camera: Camera,
     pub background: Color,

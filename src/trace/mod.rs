@@ -23,7 +23,7 @@ use crate::geom::{Color, Ray, Vec3};
 use crate::scene::Scene;
 
 /// What a ray is for; decides how a hit is treated.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 pub enum RayKind {
     Primary,
     Shadow,
@@ -55,7 +55,7 @@ impl RayKind {
 
 /// A ray with everything it needs to finish: where its contribution goes
 /// and with what weight.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct RayJob {
     pub ray: Ray,
     pub kind: RayKind,

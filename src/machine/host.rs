@@ -1,0 +1,427 @@
+//! The coordinator (the iPSC's host): builds the subdivision, runs the
+//! cost pre-pass and the mapping, sizes the flow-control windows against
+//! the nodes' budgets (refusing what cannot fit), loads the nodes, then
+//! only collects finished samples, returns credits, and detects the end
+//! exactly: every node reports how many samples it started, and the run
+//! ends when that many have finished (no time-outs). It never traces.
+
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::time::Instant;
+
+use super::codec::{decode_stamped, encode_stamped};
+use super::mapping::{self, Mapping};
+use super::message::{LinkModel, NodeReport, Path, Share, ToHost, ToNode};
+use super::node;
+use super::topology::{MAX_DIMENSION, Topology};
+use super::transport::{HostLinks, Link, NodeLinks, channels};
+use crate::cells::{CellOptions, CellStructure};
+use crate::error::{Error, Result};
+use crate::render::TraceCounters;
+use crate::scene::Scene;
+use crate::trace::{Film, RayCounts, RayJob};
+
+/// Messages a link holds by default.
+pub const DEFAULT_CAPACITY: usize = 16;
+/// The most primary paths a node keeps unfinished: enough to keep it busy
+/// while others trace its paths.
+pub const MAX_WINDOW: u32 = 64;
+
+/// What to render on the machine, beyond the scene and the topology.
+#[derive(Clone, Debug)]
+pub struct MachineOptions {
+    pub width: u32,
+    pub height: u32,
+    pub spp: u32,
+    pub cells: CellOptions,
+    pub mapping: Mapping,
+    /// Messages each link holds (at least 1).
+    pub capacity: usize,
+    /// Test-only fault injection: node, and the paths it processes first.
+    pub fail: Option<(u16, u64)>,
+}
+
+impl MachineOptions {
+    pub fn new(width: u32, height: u32, spp: u32) -> Self {
+        MachineOptions {
+            width,
+            height,
+            spp,
+            cells: CellOptions::default(),
+            mapping: Mapping::default(),
+            capacity: DEFAULT_CAPACITY,
+            fail: None,
+        }
+    }
+}
+
+/// Statistics of a machine render (`CLI.md`).
+#[derive(Clone, Debug, Default)]
+pub struct MachineStats {
+    pub dimension: u32,
+    pub wall_seconds: f64,
+    /// The modelled machine's makespan, from the first load message to the
+    /// last finished sample at the host.
+    pub virtual_seconds: f64,
+    pub build_seconds: f64,
+    pub prepass_seconds: f64,
+    /// Rays created, per kind; each was finished exactly once.
+    pub rays: RayCounts,
+    pub counters: TraceCounters,
+    pub pixels_traced: u64,
+    pub pixels_background: u64,
+    /// Every message on every link (node to node, node to host, host to
+    /// node), their encoded bytes, and the links crossed by paths.
+    pub messages: u64,
+    pub message_bytes: u64,
+    pub hops: u64,
+    pub window: u32,
+    pub mapping: Option<Mapping>,
+    /// Largest node busy time against the mean, measured and as the
+    /// pre-pass predicted it.
+    pub imbalance: f64,
+    pub predicted_imbalance: f64,
+    pub per_node: Vec<NodeReport>,
+}
+
+/// Upper bound of the bytes one path takes in a node, decoded and encoded
+/// at once (a batch being sealed): its stack holds at most the rays
+/// spawned at each depth, `max_depth + 1` levels of lights + 2 rays.
+fn path_bound(scene: &Scene) -> u64 {
+    let rays = (scene.max_depth as usize + 1) * (scene.lights.len() + 2);
+    let decoded = std::mem::size_of::<Path>() + rays * std::mem::size_of::<RayJob>();
+    (2 * decoded) as u64
+}
+
+fn mib(b: u64) -> String {
+    format!("{:.2} MiB", b as f64 / 1048576.0)
+}
+
+/// Renders on the modelled machine. Errors: `Capacity` when a share does
+/// not fit a node (before any node starts), `Render` when a node fails.
+pub fn render(
+    scene: &Scene,
+    topo: &Topology,
+    opts: &MachineOptions,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(Film, MachineStats, CellStructure)> {
+    let start = Instant::now();
+    let d = topo.dimension;
+    let n = 1usize << d;
+    let cs = CellStructure::build(scene, opts.width, opts.height, opts.cells);
+    let t_pre = Instant::now();
+    let work = mapping::estimate(&cs, scene, opts.width, opts.height, opts.mapping);
+    let owner = mapping::assign(&cs, &work, d);
+    let prepass_seconds = t_pre.elapsed().as_secs_f64();
+
+    // Shares and the memory check, before any node starts.
+    let shares: Vec<(CellStructure, Scene)> = (0..n as u16)
+        .map(|i| cs.restrict(scene, &|r, s| owner[r as usize][s as usize] == i))
+        .collect();
+    let share_bytes: Vec<u64> = shares
+        .iter()
+        .map(|(c, s)| node::share_bytes(c, s))
+        .collect();
+    let per_path = path_bound(scene);
+    let (worst, &most) = share_bytes
+        .iter()
+        .enumerate()
+        .max_by_key(|(_, b)| **b)
+        .expect("at least one node");
+    let budget = topo.node_memory;
+    // Every node may come to hold every path in flight: n windows.
+    let room = budget.saturating_sub(most);
+    let window = (room / (n as u64 * per_path)).min(MAX_WINDOW as u64) as u32;
+    if window == 0 {
+        let rays = n as u64 * per_path;
+        let hint = if d < MAX_DIMENSION {
+            format!(
+                "use --dim {} or --node-memory {}",
+                d + 1,
+                mib(most + rays).replace(' ', "")
+            )
+        } else {
+            format!("use --node-memory {}", mib(most + rays).replace(' ', ""))
+        };
+        return Err(Error::Capacity(format!(
+            "node {worst} needs {} for its cells and {} for one path in flight per node, budget {}; {hint}",
+            mib(most),
+            mib(rays),
+            mib(budget)
+        )));
+    }
+
+    let model = LinkModel {
+        latency: topo.link_latency,
+        bandwidth: topo.link_bandwidth,
+        overhead: topo.message_overhead,
+        compute_speed: topo.compute_speed,
+    };
+    let (mut host, node_links) = channels(d, opts.capacity);
+    let wall = Instant::now();
+    let mut run = Run::new(opts, n, model);
+    std::thread::scope(|sc| -> Result<()> {
+        for (i, mut links) in node_links.into_iter().enumerate() {
+            std::thread::Builder::new()
+                .name(format!("hypercast-node-{i}"))
+                .stack_size(64 << 20)
+                .spawn_scoped(sc, move || node_thread(i as u16, &mut links))
+                .map_err(|e| Error::Render(format!("cannot start node {i}: {e}")))?;
+        }
+        // Load messages, one per node, in turn over the host's link.
+        let mut loaded = Ok(());
+        for (i, (cells, local)) in shares.into_iter().enumerate() {
+            let share = Share {
+                node: i as u16,
+                dimension: d,
+                cells,
+                scene: local,
+                owner: owner.clone(),
+                width: opts.width,
+                height: opts.height,
+                spp: opts.spp.max(1),
+                window,
+                budget,
+                link: model,
+                fail_after: opts.fail.filter(|f| f.0 as usize == i).map(|f| f.1),
+            };
+            if let Err(e) = run.send(&mut host, i as u16, &ToNode::Load(Box::new(share))) {
+                loaded = Err(e);
+                break;
+            }
+        }
+        match loaded {
+            Ok(()) => run.collect(&mut host, progress),
+            Err(e) => {
+                run.stop_all(&mut host);
+                run.drain(&mut host);
+                Err(e)
+            }
+        }
+    })?;
+    let film = run.film;
+    let mut stats = MachineStats {
+        dimension: d,
+        wall_seconds: 0.0,
+        virtual_seconds: run.end_clock,
+        build_seconds: cs.stats.build_seconds,
+        prepass_seconds,
+        window,
+        mapping: Some(opts.mapping),
+        predicted_imbalance: mapping::predicted_imbalance(&work, &owner, d),
+        messages: run.messages,
+        message_bytes: run.bytes,
+        ..Default::default()
+    };
+    run.reports.sort_by_key(|r| r.node);
+    let mut finished = RayCounts::default();
+    for r in &run.reports {
+        for k in 0..4 {
+            stats.rays.0[k] += r.rays_created[k];
+            finished.0[k] += r.rays_finished[k];
+        }
+        stats.counters.intersection_tests += r.intersection_tests;
+        stats.counters.mailbox_hits += r.mailbox_hits;
+        stats.counters.cells_visited += r.cells_visited;
+        stats.counters.subtree_evaluations += r.subtree_evaluations;
+        stats.messages += r.messages_sent;
+        stats.message_bytes += r.bytes_sent;
+        stats.hops += r.hops;
+    }
+    if stats.rays != finished {
+        return Err(Error::Render(format!(
+            "ray accounting failed: created {:?}, finished {:?}",
+            stats.rays.0, finished.0
+        )));
+    }
+    stats.pixels_traced = run.traced.iter().filter(|&&t| t).count() as u64;
+    stats.pixels_background = run.traced.len() as u64 - stats.pixels_traced;
+    let busy: Vec<f64> = run.reports.iter().map(|r| r.busy_seconds).collect();
+    let mean = busy.iter().sum::<f64>() / busy.len().max(1) as f64;
+    stats.imbalance = if mean > 0.0 {
+        busy.iter().cloned().fold(0.0, f64::max) / mean
+    } else {
+        1.0
+    };
+    stats.per_node = std::mem::take(&mut run.reports);
+    stats.wall_seconds = start.elapsed().as_secs_f64();
+    let _ = wall;
+    Ok((film, stats, cs))
+}
+
+/// A node's thread: runs it, and turns an error or a panic into a
+/// `Failed` message naming the node, so that the host ends the run.
+fn node_thread(id: u16, links: &mut dyn NodeLinks) {
+    let outcome = catch_unwind(AssertUnwindSafe(|| node::run(id, links)));
+    let error = match outcome {
+        Ok(Ok(())) => return,
+        Ok(Err(e)) => e,
+        Err(panic) => panic
+            .downcast_ref::<String>()
+            .cloned()
+            .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+            .unwrap_or_else(|| "panicked".into()),
+    };
+    let Ok(mut bytes) = encode_stamped(&ToHost::Failed { node: id, error }, |_| 0.0) else {
+        return;
+    };
+    loop {
+        match links.try_send(Link::Host, bytes) {
+            Ok(Some(back)) => {
+                bytes = back;
+                links.wait(&[Link::Host]);
+            }
+            _ => return,
+        }
+    }
+}
+
+/// The host's state during a run.
+struct Run {
+    film: Film,
+    spp: u64,
+    nodes: usize,
+    model: LinkModel,
+    clock: f64,
+    end_clock: f64,
+    /// Per sample, finished yet (each exactly once).
+    seen: Vec<u64>,
+    traced: Vec<bool>,
+    finished: u64,
+    expected: u64,
+    generated: usize,
+    loaded: usize,
+    stopped: bool,
+    reports: Vec<NodeReport>,
+    messages: u64,
+    bytes: u64,
+    credit: Vec<u32>,
+}
+
+impl Run {
+    fn new(opts: &MachineOptions, nodes: usize, model: LinkModel) -> Self {
+        let pixels = opts.width as usize * opts.height as usize;
+        let samples = pixels * opts.spp.max(1) as usize;
+        Run {
+            film: Film::new(opts.width, opts.height),
+            spp: opts.spp.max(1) as u64,
+            nodes,
+            model,
+            clock: 0.0,
+            end_clock: 0.0,
+            seen: vec![0; samples.div_ceil(64)],
+            traced: vec![false; pixels],
+            finished: 0,
+            expected: 0,
+            generated: 0,
+            loaded: 0,
+            stopped: false,
+            reports: Vec::new(),
+            messages: 0,
+            bytes: 0,
+            credit: vec![0; nodes],
+        }
+    }
+
+    fn send(&mut self, host: &mut dyn HostLinks, node: u16, body: &ToNode) -> Result<()> {
+        let (model, clock) = (self.model, &mut self.clock);
+        let bytes = encode_stamped(body, |len| {
+            *clock += model.send_cost(len);
+            *clock
+        })
+        .map_err(Error::Render)?;
+        self.messages += 1;
+        self.bytes += bytes.len() as u64;
+        host.send(node, bytes)
+            .map_err(|_| Error::Render(format!("node {node} stopped unexpectedly")))
+    }
+
+    fn stop_all(&mut self, host: &mut dyn HostLinks) {
+        if !self.stopped {
+            self.stopped = true;
+            for i in 0..self.nodes {
+                // A node that already ended needs no stop.
+                let _ = self.send(host, i as u16, &ToNode::Stop);
+            }
+        }
+    }
+
+    /// Receives until every node has ended.
+    fn drain(&mut self, host: &mut dyn HostLinks) {
+        while host.recv().is_ok() {}
+    }
+
+    /// The host's loop: finished samples in, credits out, until the end.
+    fn collect(&mut self, host: &mut dyn HostLinks, progress: &(dyn Fn(u64) + Sync)) -> Result<()> {
+        let mut failures: Vec<(u16, String)> = Vec::new();
+        while self.reports.len() < self.nodes {
+            let Ok(bytes) = host.recv() else {
+                break;
+            };
+            let (sent_at, body): (f64, ToHost) = decode_stamped(&bytes).map_err(Error::Render)?;
+            self.clock = self.clock.max(sent_at + self.model.latency);
+            match body {
+                ToHost::Loaded { .. } => self.loaded += 1,
+                ToHost::Done { finished, .. } => {
+                    for f in &finished {
+                        let (w, b) = ((f.sample / 64) as usize, f.sample % 64);
+                        if self.seen.get(w).is_none_or(|x| x & (1 << b) != 0) {
+                            failures.push((
+                                f.origin,
+                                format!("sample {} finished twice or unknown", f.sample),
+                            ));
+                            continue;
+                        }
+                        self.seen[w] |= 1 << b;
+                        let pixel = (f.sample / self.spp) as u32;
+                        self.film.add_fixed(pixel, f.sum);
+                        if f.traced {
+                            self.traced[pixel as usize] = true;
+                            self.credit[f.origin as usize] += 1;
+                        }
+                    }
+                    self.finished += finished.len() as u64;
+                    progress(finished.len() as u64);
+                    if !self.stopped {
+                        for o in 0..self.nodes {
+                            let c = std::mem::take(&mut self.credit[o]);
+                            if c > 0 {
+                                self.send(host, o as u16, &ToNode::Credit(c))?;
+                            }
+                        }
+                    }
+                }
+                ToHost::Generated { samples, .. } => {
+                    self.generated += 1;
+                    self.expected += samples;
+                }
+                ToHost::Report(r) => self.reports.push(*r),
+                ToHost::Failed { node, error } => {
+                    failures.push((node, error));
+                    self.stop_all(host);
+                }
+            }
+            if !self.stopped && self.generated == self.nodes && self.finished == self.expected {
+                self.end_clock = self.clock;
+                self.stop_all(host);
+            }
+        }
+        self.drain(host);
+        if !failures.is_empty() {
+            // The root cause first: a node's own failure, not its
+            // neighbours' lost links.
+            failures.sort_by_key(|(_, e)| e.contains("closed"));
+            let (node, error) = &failures[0];
+            return Err(Error::Render(format!("node {node} failed: {error}")));
+        }
+        if self.reports.len() < self.nodes || self.finished != self.expected {
+            return Err(Error::Render(format!(
+                "the machine stopped early: {} of {} samples finished, {} of {} nodes reported",
+                self.finished,
+                self.expected,
+                self.reports.len(),
+                self.nodes
+            )));
+        }
+        Ok(())
+    }
+}

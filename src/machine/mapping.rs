@@ -1,0 +1,151 @@
+//! Which node owns which super cell (its cells, their subtrees, the pixels
+//! of its pixel area). Super cells are ordered by a depth-first walk of the
+//! screen BSP, so that runs of the order are compact screen regions; the
+//! order is cut into 2^d runs and run i goes to node `gray(i)`, so that
+//! neighbouring regions land on hypercube neighbours (consecutive Gray
+//! codes differ in one bit). Where the cuts fall is the load balance:
+//!
+//! * `Balanced` (default) weighs each super cell by the work a cheap
+//!   pre-pass measured there: every `stride`-th pixel of every
+//!   `stride`-th row traced through the whole structure on the host, all
+//!   its ray kinds, counting cells entered and intersection tests, after
+//!   Priol and Bouatouch's static load balancing on the iPSC;
+//! * `EqualArea`, the naive split, weighs each super cell by its share of
+//!   the image, so that every node owns as many pixels.
+
+use crate::cells::{BspNode, CellStructure, CellTracer, Partition, Region};
+use crate::machine::routing::gray;
+use crate::render::pixel_jobs;
+use crate::scene::Scene;
+use crate::trace::{CameraFrame, Film, RayCounts, Shader};
+
+/// How the load is balanced.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum Mapping {
+    #[default]
+    Balanced,
+    EqualArea,
+}
+
+impl Mapping {
+    pub fn name(self) -> &'static str {
+        match self {
+            Mapping::Balanced => "balanced",
+            Mapping::EqualArea => "equal-area",
+        }
+    }
+}
+
+/// Pixels per side of the pre-pass's sampling grid cell.
+pub const PREPASS_STRIDE: u32 = 8;
+
+/// The estimated work of every super cell, per region.
+pub fn estimate(
+    cs: &CellStructure,
+    scene: &Scene,
+    width: u32,
+    height: u32,
+    mapping: Mapping,
+) -> [Vec<f64>; 2] {
+    match mapping {
+        Mapping::EqualArea => Region::BOTH.map(|r| {
+            let rc = cs.region(r);
+            if r == Region::Back {
+                // No pixel lies behind the eye: spread those evenly.
+                return vec![0.0; rc.supers.len()];
+            }
+            let cam = CameraFrame::new(scene, width, height);
+            rc.supers
+                .iter()
+                .map(|s| {
+                    let w = (s.rect.x1.min(cam.half_w) - s.rect.x0.max(-cam.half_w)).max(0.0);
+                    let h = (s.rect.y1.min(cam.half_h) - s.rect.y0.max(-cam.half_h)).max(0.0);
+                    w * h
+                })
+                .collect()
+        }),
+        Mapping::Balanced => {
+            let cam = CameraFrame::new(scene, width, height);
+            let shader = Shader::new(scene);
+            let mut tracer = CellTracer::new(cs, scene);
+            tracer.record_work();
+            let mut film = Film::new(width, height);
+            let (mut counts, mut stack, mut jobs) = (RayCounts::default(), Vec::new(), Vec::new());
+            let half = PREPASS_STRIDE / 2;
+            for j in (half.min(height - 1)..height).step_by(PREPASS_STRIDE as usize) {
+                for i in (half.min(width - 1)..width).step_by(PREPASS_STRIDE as usize) {
+                    jobs.clear();
+                    pixel_jobs(&cam, i, j, 1, &mut jobs);
+                    for job in jobs.drain(..) {
+                        shader.run_path(&mut tracer, job, &mut film, &mut counts, &mut stack);
+                    }
+                }
+            }
+            let work = tracer.recorded_work().expect("recording");
+            [0, 1].map(|r| work[r].iter().map(|&w| w as f64).collect())
+        }
+    }
+}
+
+/// Super cells of a partition in depth-first BSP order.
+pub fn bsp_order(p: &Partition) -> Vec<u32> {
+    let mut out = Vec::with_capacity(p.leaves.len());
+    let mut stack = vec![0u32];
+    while let Some(n) = stack.pop() {
+        match p.nodes[n as usize] {
+            BspNode::Leaf(l) => out.push(l),
+            BspNode::Split { lo, hi, .. } => {
+                stack.push(hi);
+                stack.push(lo);
+            }
+        }
+    }
+    out
+}
+
+/// The owner of every super cell of each region, for `2^d` nodes: the
+/// regions' super cells in BSP order (front, then back) cut into runs of
+/// equal estimated work, run i on node `gray(i)`. Every super cell also
+/// weighs a little (a share of the mean), so that work-free stretches
+/// still spread out.
+pub fn assign(cs: &CellStructure, work: &[Vec<f64>; 2], d: u32) -> [Vec<u16>; 2] {
+    let nodes = 1usize << d;
+    let order: Vec<(usize, u32)> = Region::BOTH
+        .iter()
+        .flat_map(|&r| {
+            bsp_order(&cs.region(r).partition)
+                .into_iter()
+                .map(move |s| (r as usize, s))
+        })
+        .collect();
+    let total: f64 = order.iter().map(|&(r, s)| work[r][s as usize]).sum();
+    let floor = 0.01 * total.max(1.0) / order.len().max(1) as f64;
+    let weight = |r: usize, s: u32| work[r][s as usize] + floor;
+    let sum: f64 = order.iter().map(|&(r, s)| weight(r, s)).sum();
+    let mut owner = Region::BOTH.map(|r| vec![0u16; cs.region(r).supers.len()]);
+    let mut acc = 0.0;
+    for &(r, s) in &order {
+        let w = weight(r, s);
+        // The run whose share of the total contains this cell's middle.
+        let run = (((acc + w / 2.0) / sum) * nodes as f64) as usize;
+        acc += w;
+        owner[r][s as usize] = gray(run.min(nodes - 1) as u16);
+    }
+    owner
+}
+
+/// The largest estimated load of a node against the mean (1 is perfect).
+pub fn predicted_imbalance(work: &[Vec<f64>; 2], owner: &[Vec<u16>; 2], d: u32) -> f64 {
+    let mut load = vec![0.0; 1 << d];
+    for r in 0..2 {
+        for (s, &o) in owner[r].iter().enumerate() {
+            load[o as usize] += work[r][s];
+        }
+    }
+    let mean = load.iter().sum::<f64>() / load.len() as f64;
+    if mean > 0.0 {
+        load.iter().cloned().fold(0.0, f64::max) / mean
+    } else {
+        1.0
+    }
+}

@@ -1,0 +1,178 @@
+//! What travels between the host and the nodes. A node knows nothing but
+//! what these messages tell it: its share of the cells (`Share`, in the
+//! load message), then rays, credits and the order to stop.
+//!
+//! Rays travel as *paths*: a path is the ray tree of one primary sample,
+//! followed depth first as `Shader::run_path` does on one node. Its active
+//! ray moves from node to node; the rays it has spawned but not yet traced
+//! travel with it (`stack`), and its contributions are summed in fixed
+//! point as it goes (`sum`), so that one message reaches the host per
+//! sample. Every ray carries what it needs to finish anywhere: pixel,
+//! weight, depth, kind, its number within the path, and where its walk
+//! stands.
+
+use serde::{Deserialize, Serialize};
+
+use crate::cells::{CellStructure, WalkPoint};
+use crate::scene::Scene;
+use crate::trace::RayJob;
+
+/// Host to node.
+#[derive(Serialize, Deserialize)]
+pub enum ToNode {
+    Load(Box<Share>),
+    /// A batch of paths over one link.
+    Rays(Vec<Routed>),
+    /// Permission to start this many more primary paths.
+    Credit(u32),
+    /// Every path is finished: report and stop.
+    Stop,
+}
+
+/// Node to host.
+#[derive(Serialize, Deserialize)]
+pub enum ToHost {
+    Loaded {
+        node: u16,
+    },
+    /// Finished samples, in a batch.
+    Done {
+        node: u16,
+        finished: Vec<Finished>,
+    },
+    /// The node has started every sample it owns: this many.
+    Generated {
+        node: u16,
+        samples: u64,
+    },
+    Report(Box<NodeReport>),
+    Failed {
+        node: u16,
+        error: String,
+    },
+}
+
+/// A node's share: everything it will ever know about the scene.
+#[derive(Serialize, Deserialize)]
+pub struct Share {
+    pub node: u16,
+    pub dimension: u32,
+    /// The skeleton of every cell, the content of the owned ones
+    /// (`CellStructure::restrict`).
+    pub cells: CellStructure,
+    /// The primitives the owned cells reference, renumbered; lights,
+    /// materials, camera.
+    pub scene: Scene,
+    /// The cell-to-node map: per region, per super cell, its owner.
+    pub owner: [Vec<u16>; 2],
+    pub width: u32,
+    pub height: u32,
+    pub spp: u32,
+    /// Primary paths the node may have unfinished at once (flow control:
+    /// with every node's window, the paths in flight fit any node).
+    pub window: u32,
+    pub budget: u64,
+    pub link: LinkModel,
+    /// Test-only fault injection: fail after this many paths processed.
+    pub fail_after: Option<u64>,
+}
+
+/// The topology's cost model of computing and communicating.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
+pub struct LinkModel {
+    pub latency: f64,
+    pub bandwidth: f64,
+    pub overhead: f64,
+    pub compute_speed: f64,
+}
+
+impl LinkModel {
+    /// Virtual seconds the sender spends on a message of `bytes`.
+    pub fn send_cost(&self, bytes: usize) -> f64 {
+        self.overhead + bytes as f64 / self.bandwidth
+    }
+}
+
+/// A path on its way to node `dest`, `hops` links so far.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Routed {
+    pub dest: u16,
+    pub hops: u8,
+    pub path: Path,
+}
+
+/// The ray tree of one primary sample, being traced depth first.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Path {
+    /// `pixel · spp + k`: unique per sample.
+    pub sample: u64,
+    /// The node that started it (and gets its credit back).
+    pub origin: u16,
+    /// Fixed-point sum of the contributions so far (`Film::quantize`).
+    pub sum: [i64; 3],
+    pub active: Active,
+    /// Spawned rays not yet traced.
+    pub stack: Vec<RayJob>,
+}
+
+/// The ray being traced.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Active {
+    pub job: RayJob,
+    /// Its number within the path, in tracing order: with `sample`, it
+    /// names the ray uniquely.
+    pub number: u32,
+    /// Boundaries count from here (a shadow ray past a transparent surface).
+    pub t_min: f64,
+    /// Where its walk stopped, if it did so at another node's cell.
+    pub at: Option<WalkPoint>,
+}
+
+impl Path {
+    /// Bytes the path occupies in a node's memory.
+    pub fn bytes(&self) -> usize {
+        std::mem::size_of::<Path>() + self.stack.capacity() * std::mem::size_of::<RayJob>()
+    }
+}
+
+/// A finished sample.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
+pub struct Finished {
+    pub sample: u64,
+    pub origin: u16,
+    pub sum: [i64; 3],
+    /// False for samples of empty pixel areas, never traced.
+    pub traced: bool,
+}
+
+/// What a node reports when it stops.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct NodeReport {
+    pub node: u16,
+    pub cells: u64,
+    pub super_cells: u64,
+    pub primitives: u64,
+    /// Bytes of the share (cells, subtrees, primitives, mailboxes).
+    pub memory_bytes: u64,
+    pub memory_budget_bytes: u64,
+    pub peak_memory_bytes: u64,
+    /// Rays traced here, whole or in part.
+    pub rays_processed: u64,
+    /// Rays created here, per kind (primary, shadow, reflected, refracted),
+    /// and finished here.
+    pub rays_created: [u64; 4],
+    pub rays_finished: [u64; 4],
+    pub messages_sent: u64,
+    pub bytes_sent: u64,
+    /// Links crossed by the paths this node sent (its own and forwarded).
+    pub hops: u64,
+    pub paths_forwarded: u64,
+    pub intersection_tests: u64,
+    pub mailbox_hits: u64,
+    pub cells_visited: u64,
+    pub subtree_evaluations: u64,
+    /// Host CPU seconds of computing (thread time).
+    pub busy_seconds: f64,
+    /// The node's clock at its last work.
+    pub virtual_seconds: f64,
+}
