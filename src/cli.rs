@@ -11,6 +11,7 @@ use serde_json::json;
 
 use crate::cells::{CellOptions, CellStructure, SegmentChoice};
 use crate::error::{Error, Result};
+use crate::machine::{self, MachineOptions, MachineStats, Mapping, Topology};
 use crate::render::{self, Accel, RenderOptions, RenderStats};
 use crate::report::{self, ImageMetrics, stats::num};
 use crate::scene::{self, Scene};
@@ -33,6 +34,102 @@ pub enum Command {
     Render(RenderArgs),
     /// Show the paper's subdivision of a scene: counts, memory, and an overlay picture.
     Inspect(InspectArgs),
+    /// Render once per hypercube dimension: speedup, efficiency, messages, imbalance.
+    Scale(ScaleArgs),
+}
+
+/// The modelled machine's options, shared by `render`, `inspect` and `scale`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct MachineArgs {
+    /// Topology file of the modelled machine (default: the built-in iPSC-D5, 32 nodes of 4.5 MiB).
+    #[arg(long)]
+    pub topology: Option<PathBuf>,
+    /// Hypercube dimension, 2^D nodes (0: one node); overrides the topology's.
+    #[arg(long)]
+    pub dim: Option<u32>,
+    /// Memory per node, e.g. 4.5MiB, 512KiB, 2GiB or bytes; overrides the topology's.
+    #[arg(long, value_parser = parse_size_arg)]
+    pub node_memory: Option<u64>,
+    /// How super cells are mapped to nodes: balanced by a cost pre-pass, or equal image areas.
+    #[arg(long, value_enum, default_value_t = Mapping::Balanced)]
+    pub mapping: Mapping,
+    /// Messages each link holds before its sender must wait.
+    #[arg(long, default_value_t = machine::DEFAULT_CAPACITY)]
+    pub link_capacity: usize,
+    /// Test only: node N fails after K paths (N:K).
+    #[arg(long, hide = true)]
+    pub inject_fault: Option<String>,
+}
+
+fn parse_size_arg(s: &str) -> std::result::Result<u64, String> {
+    machine::parse_size(s)
+}
+
+impl MachineArgs {
+    /// The topology with the overrides applied.
+    pub fn topology(&self) -> Result<Topology> {
+        let base = match &self.topology {
+            Some(p) => Topology::load(p)?,
+            None => Topology::ipsc_d5(),
+        };
+        base.with_overrides(self.dim, self.node_memory)
+    }
+
+    /// Machine options for a render of `width`×`height` at `spp`.
+    pub fn options(
+        &self,
+        width: u32,
+        height: u32,
+        spp: u32,
+        bsp: SegmentChoice,
+    ) -> Result<MachineOptions> {
+        if self.link_capacity == 0 {
+            return Err(Error::Usage("--link-capacity must be at least 1".into()));
+        }
+        let mut o = MachineOptions::new(width, height, spp);
+        o.cells = CellOptions { choice: bsp };
+        o.mapping = self.mapping;
+        o.capacity = self.link_capacity;
+        o.fail = match &self.inject_fault {
+            None => None,
+            Some(f) => {
+                let bad =
+                    || Error::Usage(format!("--inject-fault: expected NODE:PATHS, got {f:?}"));
+                let (a, b) = f.split_once(':').ok_or_else(bad)?;
+                Some((a.parse().map_err(|_| bad())?, b.parse().map_err(|_| bad())?))
+            }
+        };
+        Ok(o)
+    }
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ScaleArgs {
+    /// Scene file: .ron, .json or .nff.
+    pub scene: PathBuf,
+    /// Dimensions to run, as a range A..B (inclusive) or a list 0,2,5.
+    #[arg(long, default_value = "0..5")]
+    pub dims: String,
+    /// Runs per dimension; the median is reported.
+    #[arg(long, default_value_t = 1)]
+    pub repeat: u32,
+    /// Folder for scaling.csv and scaling.png (created if missing).
+    #[arg(long, default_value = ".")]
+    pub out: PathBuf,
+    /// Image width (default: the scene camera's).
+    #[arg(long)]
+    pub width: Option<u32>,
+    /// Image height (default: the scene camera's).
+    #[arg(long)]
+    pub height: Option<u32>,
+    /// Samples per pixel.
+    #[arg(long, default_value_t = 1)]
+    pub spp: u32,
+    #[command(flatten)]
+    pub machine: MachineArgs,
+    /// No progress bar.
+    #[arg(short, long)]
+    pub quiet: bool,
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -74,6 +171,8 @@ pub struct InspectArgs {
     /// Host threads for the overlay's render.
     #[arg(long)]
     pub threads: Option<usize>,
+    #[command(flatten)]
+    pub machine: MachineArgs,
     /// No progress bar.
     #[arg(short, long)]
     pub quiet: bool,
@@ -115,12 +214,14 @@ pub struct RenderArgs {
     /// Write statistics as JSON to this file.
     #[arg(long)]
     pub stats: Option<PathBuf>,
-    /// Host threads for single-node work (default: all cores).
+    /// Host threads for --accel roth (default: all cores); the machine runs one thread per node.
     #[arg(long)]
     pub threads: Option<usize>,
     /// How the screen-plane BSP chooses its splitting segments (cells only).
     #[arg(long, value_enum, default_value_t = BspArg::Sampled)]
     pub bsp: BspArg,
+    #[command(flatten)]
+    pub machine: MachineArgs,
     /// No progress bar and no summary.
     #[arg(short, long)]
     pub quiet: bool,
@@ -131,6 +232,7 @@ pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Render(a) => run_render(a),
         Command::Inspect(a) => run_inspect(a),
+        Command::Scale(a) => run_scale(a),
     }
 }
 
@@ -143,7 +245,8 @@ struct RenderJob {
     accel: Accel,
     reference: Option<(PathBuf, report::DisplayImage)>,
     stats: Option<PathBuf>,
-    bsp: SegmentChoice,
+    /// The modelled machine, for `--accel cells`.
+    machine: Option<(Topology, MachineOptions)>,
     quiet: bool,
 }
 
@@ -212,7 +315,15 @@ fn prepare_render(a: RenderArgs) -> Result<RenderJob> {
         }
     };
     let threads = host_threads(a.threads)?;
+    let machine = match a.accel {
+        AccelArg::Roth => None,
+        AccelArg::Cells => Some((
+            a.machine.topology()?,
+            a.machine.options(width, height, a.spp, a.bsp.into())?,
+        )),
+    };
     Ok(RenderJob {
+        machine,
         scene_path: a.scene,
         scene,
         output,
@@ -228,7 +339,6 @@ fn prepare_render(a: RenderArgs) -> Result<RenderJob> {
         },
         reference,
         stats: a.stats,
-        bsp: a.bsp.into(),
         quiet: a.quiet,
     })
 }
@@ -285,24 +395,24 @@ pub fn progress_bar(total: u64, quiet: bool, what: &str) -> ProgressBar {
 
 fn run_render(a: RenderArgs) -> Result<()> {
     let job = prepare_render(a)?;
-    let pb = progress_bar(job.opts.height as u64, job.quiet, "render");
-    let progress = |rows: u32| pb.inc(rows as u64);
-    let (film, stats, cs) = match job.accel {
-        Accel::Roth => {
+    let (film, stats, machine_stats, cs) = match &job.machine {
+        None => {
+            let pb = progress_bar(job.opts.height as u64, job.quiet, "render");
+            let progress = |rows: u32| pb.inc(rows as u64);
             let (film, stats) = render::render_roth(&job.scene, &job.opts, &progress);
-            (film, stats, None)
+            pb.finish_and_clear();
+            (film, stats, None, None)
         }
-        Accel::Cells => {
-            let (film, stats, cs) = render::render_cells(
-                &job.scene,
-                &job.opts,
-                CellOptions { choice: job.bsp },
-                &progress,
-            );
-            (film, stats, Some(cs))
+        Some((topo, mopts)) => {
+            let samples = job.opts.width as u64 * job.opts.height as u64 * job.opts.spp as u64;
+            let pb = progress_bar(samples, job.quiet, "render");
+            let progress = |n: u64| pb.inc(n);
+            let result = machine::render(&job.scene, topo, mopts, &progress);
+            pb.finish_and_clear();
+            let (film, ms, cs) = result?;
+            (film, ms.as_render_stats(), Some(ms), Some(cs))
         }
     };
-    pb.finish_and_clear();
     let linear = film.to_linear();
     report::write_image(&job.output, job.opts.width, job.opts.height, &linear)?;
     let metrics = job
@@ -314,25 +424,42 @@ fn run_render(a: RenderArgs) -> Result<()> {
         if let Some(cs) = &cs {
             report::stats::extend(&mut v, structure_json(cs));
         }
+        if let (Some(ms), Some((topo, _))) = (&machine_stats, &job.machine) {
+            report::stats::extend(&mut v, machine_json(topo, ms));
+        }
         report::stats::write_json(p, &v)?;
     }
     if !job.quiet {
+        let how = match (&machine_stats, &job.machine) {
+            (Some(ms), Some((topo, _))) => {
+                format!("cells on {} with {} nodes", topo.name, ms.per_node.len())
+            }
+            _ => format!("{}, {} threads", job.accel.name(), job.opts.threads),
+        };
         eprintln!(
-            "hypercast: wrote {} ({}x{}, {} spp, {}) in {:.3} s wall; {} rays, {} intersection tests",
+            "hypercast: wrote {} ({}x{}, {} spp, {how}) in {:.3} s wall; {} rays, {} intersection tests",
             job.output.display(),
             job.opts.width,
             job.opts.height,
             job.opts.spp,
-            job.accel.name(),
             stats.wall_seconds,
             stats.rays.total(),
             stats.counters.intersection_tests
         );
+        if let Some(ms) = &machine_stats {
+            eprintln!(
+                "hypercast: modelled machine: {:.3} s virtual; {} messages, {} bytes, {} hops; busy imbalance {:.2} (max/mean)",
+                ms.virtual_seconds, ms.messages, ms.message_bytes, ms.hops, ms.imbalance
+            );
+        }
     }
     if let Some(m) = metrics {
         // Error beside run time, always printed when asked for.
+        let virt = machine_stats.as_ref().map_or(String::new(), |ms| {
+            format!("  virtual {:.3} s", ms.virtual_seconds)
+        });
         println!(
-            "rmse {:.6}  psnr {:.2} dB  max {:.6}  wall {:.3} s",
+            "rmse {:.6}  psnr {:.2} dB  max {:.6}  wall {:.3} s{virt}",
             m.rmse, m.psnr, m.max_error, stats.wall_seconds
         );
     }
@@ -363,11 +490,62 @@ fn stats_json(job: &RenderJob, s: &RenderStats, m: Option<&ImageMetrics>) -> ser
         "pixels_traced": s.pixels_traced,
         "pixels_background": s.pixels_background,
         "primitives": job.scene.primitives.len(),
+        "messages": 0,
+        "message_bytes": 0,
+        "hops": 0,
+        "per_node": [],
         "rmse": m.map(|m| num(m.rmse)),
         "psnr": m.map(|m| num(m.psnr)),
         "max_error": m.map(|m| num(m.max_error)),
         "reference": job.reference.as_ref().map(|(p, _)| p.display().to_string()),
     })
+}
+
+/// The keys of a machine run (`CLI.md`), replacing the single-node ones.
+pub fn machine_json(topo: &Topology, ms: &MachineStats) -> Vec<(&'static str, serde_json::Value)> {
+    let per_node: Vec<serde_json::Value> = ms
+        .per_node
+        .iter()
+        .map(|n| {
+            json!({
+                "node": n.node,
+                "cells": n.cells,
+                "super_cells": n.super_cells,
+                "primitives": n.primitives,
+                "memory_bytes": n.memory_bytes,
+                "memory_budget_bytes": n.memory_budget_bytes,
+                "peak_memory_bytes": n.peak_memory_bytes,
+                "rays_processed": n.rays_processed,
+                "messages_sent": n.messages_sent,
+                "bytes_sent": n.bytes_sent,
+                "hops": n.hops,
+                "paths_forwarded": n.paths_forwarded,
+                "intersection_tests": n.intersection_tests,
+                "busy_seconds": n.busy_seconds,
+                "virtual_seconds": n.virtual_seconds,
+            })
+        })
+        .collect();
+    vec![
+        ("topology", json!(topo.name)),
+        ("dimension", json!(ms.dimension)),
+        ("nodes", json!(ms.per_node.len())),
+        ("virtual_seconds", num(ms.virtual_seconds)),
+        ("messages", json!(ms.messages)),
+        ("message_bytes", json!(ms.message_bytes)),
+        ("hops", json!(ms.hops)),
+        ("mapping", json!(ms.mapping.map(|m| m.name()))),
+        ("window", json!(ms.window)),
+        ("imbalance", num(ms.imbalance)),
+        ("predicted_imbalance", num(ms.predicted_imbalance)),
+        ("prepass_seconds", num(ms.prepass_seconds)),
+        (
+            "peak_memory_bytes",
+            json!(ms.per_node.iter().map(|n| n.peak_memory_bytes).max()),
+        ),
+        ("replicated_scene_bytes", json!(ms.replicated_bytes)),
+        ("per_node", json!(per_node)),
+    ]
 }
 
 /// The keys describing a cell structure (`--stats`, `inspect --stats`).
@@ -444,9 +622,68 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
         s.bytes as f64 / (1024.0 * 1024.0)
     );
     println!("build time          {:.4} s", s.build_seconds);
+    let mut v = json!({"scene": a.scene.display().to_string(), "width": width, "height": height, "primitives": scene.primitives.len()});
+    report::stats::extend(&mut v, structure_json(&cs));
+    // The mapping on the modelled machine: what each node would hold.
+    let topo = a.machine.topology()?;
+    let mopts = a.machine.options(width, height, 1, a.bsp.into())?;
+    let plan = machine::host::Plan::new(&scene, &topo, &mopts);
+    println!(
+        "machine             {} with {} nodes of {:.2} MiB, {} mapping",
+        topo.name,
+        topo.nodes(),
+        topo.node_memory as f64 / 1048576.0,
+        mopts.mapping.name()
+    );
+    println!(
+        "replicated scene    {:.2} MiB per node if every node held everything",
+        plan.replicated_bytes as f64 / 1048576.0
+    );
+    println!(
+        "paths in flight     {} per node (each at most {} bytes)",
+        plan.window, plan.path_bytes
+    );
+    println!("node  super_cells  cells  primitives  memory_MiB  estimated_work");
+    let mut nodes_json = Vec::new();
+    for (i, (share, local)) in plan.shares.iter().enumerate() {
+        let owned: Vec<(usize, usize)> = (0..2)
+            .flat_map(|r| {
+                plan.owner[r]
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, o)| **o as usize == i)
+                    .map(move |(s, _)| (r, s))
+            })
+            .collect();
+        let cells: usize = owned
+            .iter()
+            .map(|&(r, s)| share.regions[r].cells_of(s as u32).len())
+            .sum();
+        let work: f64 = owned.iter().map(|&(r, s)| plan.work[r][s]).sum();
+        println!(
+            "{i:>4}  {:>11}  {cells:>5}  {:>10}  {:>10.3}  {work:>14.0}",
+            owned.len(),
+            local.primitives.len(),
+            plan.share_bytes[i] as f64 / 1048576.0
+        );
+        nodes_json.push(json!({"node": i, "super_cells": owned.len(), "cells": cells, "primitives": local.primitives.len(), "memory_bytes": plan.share_bytes[i], "estimated_work": work}));
+    }
+    if let Err(e) = plan.check(&topo) {
+        println!("does not fit: {e}");
+    }
+    report::stats::extend(
+        &mut v,
+        [
+            ("topology", json!(topo.name)),
+            ("dimension", json!(topo.dimension)),
+            ("nodes", json!(topo.nodes())),
+            ("memory_budget_bytes", json!(topo.node_memory)),
+            ("replicated_scene_bytes", json!(plan.replicated_bytes)),
+            ("window", json!(plan.window)),
+            ("per_node", json!(nodes_json)),
+        ],
+    );
     if let Some(p) = &a.stats {
-        let mut v = json!({"scene": a.scene.display().to_string(), "width": width, "height": height, "primitives": scene.primitives.len()});
-        report::stats::extend(&mut v, structure_json(&cs));
         report::stats::write_json(p, &v)?;
     }
     if let Some(o) = &a.overlay {
@@ -468,11 +705,73 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
         pb.finish_and_clear();
         let mut img = film.to_linear();
         let cam = crate::trace::CameraFrame::new(&scene, width, height);
-        report::overlay::draw_super_cells(&mut img, &cam, &cs);
+        report::overlay::draw_super_cells(&mut img, &cam, &cs, Some(&plan.owner[0]));
         report::write_image(o, width, height, &img)?;
         if !a.quiet {
             eprintln!("hypercast: wrote {}", o.display());
         }
+    }
+    Ok(())
+}
+
+fn run_scale(a: ScaleArgs) -> Result<()> {
+    let dims = report::scale::parse_dims(&a.dims).map_err(Error::Usage)?;
+    if a.repeat == 0 || a.repeat > 100 {
+        return Err(Error::Usage(format!(
+            "--repeat must be in 1..=100, got {}",
+            a.repeat
+        )));
+    }
+    if a.spp == 0 || a.spp > 65536 {
+        return Err(Error::Usage(format!(
+            "--spp must be in 1..=65536, got {}",
+            a.spp
+        )));
+    }
+    if a.machine.dim.is_some() {
+        return Err(Error::Usage("scale takes --dims, not --dim".into()));
+    }
+    if !a.out.exists() {
+        std::fs::create_dir_all(&a.out).map_err(|e| Error::Write {
+            path: a.out.clone(),
+            message: e.to_string(),
+        })?;
+    } else if !a.out.is_dir() {
+        return Err(Error::Usage(format!(
+            "--out {}: not a folder",
+            a.out.display()
+        )));
+    }
+    let (scene, width, height) = load_for_run(&a.scene, a.width, a.height, a.quiet)?;
+    let topo = a.machine.topology()?;
+    let opts = a
+        .machine
+        .options(width, height, a.spp, SegmentChoice::default())?;
+    let runs = dims.len() as u64 * (a.repeat as u64 + 1);
+    let pb = progress_bar(runs, a.quiet, "scale");
+    let rows = report::scale::measure(&scene, &topo, &dims, a.repeat, &opts, &|done, _| {
+        pb.set_position(done as u64)
+    });
+    pb.finish_and_clear();
+    let rows = rows?;
+    print!("{}", report::scale::table(&rows));
+    let title = format!(
+        "{} on {} ({}x{}, {} spp)",
+        a.scene
+            .file_name()
+            .map_or("scene".into(), |s| s.to_string_lossy()),
+        topo.name,
+        width,
+        height,
+        a.spp
+    );
+    report::scale::write_outputs(&a.out, &title, &rows)?;
+    if !a.quiet {
+        eprintln!(
+            "hypercast: wrote {} and {}",
+            a.out.join("scaling.csv").display(),
+            a.out.join("scaling.png").display()
+        );
     }
     Ok(())
 }

@@ -16,7 +16,7 @@ use super::topology::{MAX_DIMENSION, Topology};
 use super::transport::{HostLinks, Link, NodeLinks, channels};
 use crate::cells::{CellOptions, CellStructure};
 use crate::error::{Error, Result};
-use crate::render::TraceCounters;
+use crate::render::{RenderStats, TraceCounters};
 use crate::scene::Scene;
 use crate::trace::{Film, RayCounts, RayJob};
 
@@ -81,6 +81,21 @@ pub struct MachineStats {
     pub imbalance: f64,
     pub predicted_imbalance: f64,
     pub per_node: Vec<NodeReport>,
+    /// Bytes one node would hold with the whole structure and scene.
+    pub replicated_bytes: u64,
+}
+
+impl MachineStats {
+    /// The counts a single-node render reports too.
+    pub fn as_render_stats(&self) -> RenderStats {
+        RenderStats {
+            wall_seconds: self.wall_seconds,
+            rays: self.rays,
+            counters: self.counters,
+            pixels_traced: self.pixels_traced,
+            pixels_background: self.pixels_background,
+        }
+    }
 }
 
 /// Upper bound of the bytes one path takes in a node, decoded and encoded
@@ -96,6 +111,89 @@ fn mib(b: u64) -> String {
     format!("{:.2} MiB", b as f64 / 1048576.0)
 }
 
+/// What the host decides before any node starts: the structure, the
+/// mapping, every node's share and its size, the flow-control window.
+pub struct Plan {
+    pub cells: CellStructure,
+    pub work: [Vec<f64>; 2],
+    pub owner: [Vec<u16>; 2],
+    /// Per node: its structure and scene.
+    pub shares: Vec<(CellStructure, Scene)>,
+    pub share_bytes: Vec<u64>,
+    /// What one node would hold with the whole scene replicated.
+    pub replicated_bytes: u64,
+    /// Primary paths per node in flight, 0 when even one does not fit.
+    pub window: u32,
+    /// Bound of one path's bytes in a node.
+    pub path_bytes: u64,
+    pub prepass_seconds: f64,
+}
+
+impl Plan {
+    /// Builds the structure, maps it on `2^d` nodes and sizes the shares.
+    pub fn new(scene: &Scene, topo: &Topology, opts: &MachineOptions) -> Plan {
+        let d = topo.dimension;
+        let n = 1usize << d;
+        let cells = CellStructure::build(scene, opts.width, opts.height, opts.cells);
+        let t_pre = Instant::now();
+        let work = mapping::estimate(&cells, scene, opts.width, opts.height, opts.mapping);
+        let owner = mapping::assign(&cells, &work, d);
+        let prepass_seconds = t_pre.elapsed().as_secs_f64();
+        let shares: Vec<(CellStructure, Scene)> = (0..n as u16)
+            .map(|i| cells.restrict(scene, &|r, s| owner[r as usize][s as usize] == i))
+            .collect();
+        let share_bytes: Vec<u64> = shares
+            .iter()
+            .map(|(c, s)| node::share_bytes(c, s))
+            .collect();
+        let path_bytes = path_bound(scene);
+        let most = share_bytes.iter().copied().max().unwrap_or(0);
+        // Every node may come to hold every path in flight: n windows.
+        let room = topo.node_memory.saturating_sub(most);
+        let window = (room / (n as u64 * path_bytes)).min(MAX_WINDOW as u64) as u32;
+        Plan {
+            replicated_bytes: node::share_bytes(&cells, scene),
+            cells,
+            work,
+            owner,
+            shares,
+            share_bytes,
+            window,
+            path_bytes,
+            prepass_seconds,
+        }
+    }
+
+    /// Refuses, with the numbers, a plan where some node cannot hold its
+    /// share and one path in flight per node.
+    pub fn check(&self, topo: &Topology) -> Result<()> {
+        if self.window > 0 {
+            return Ok(());
+        }
+        let d = topo.dimension;
+        let n = 1u64 << d;
+        let (worst, &most) = self
+            .share_bytes
+            .iter()
+            .enumerate()
+            .max_by_key(|(_, b)| **b)
+            .expect("at least one node");
+        let rays = n * self.path_bytes;
+        let need = mib(most + rays).replace(' ', "");
+        let hint = if d < MAX_DIMENSION {
+            format!("use --dim {} or --node-memory {need}", d + 1)
+        } else {
+            format!("use --node-memory {need}")
+        };
+        Err(Error::Capacity(format!(
+            "node {worst} needs {} for its cells and {} for one path in flight per node, budget {}; {hint}",
+            mib(most),
+            mib(rays),
+            mib(topo.node_memory)
+        )))
+    }
+}
+
 /// Renders on the modelled machine. Errors: `Capacity` when a share does
 /// not fit a node (before any node starts), `Render` when a node fails.
 pub fn render(
@@ -107,49 +205,19 @@ pub fn render(
     let start = Instant::now();
     let d = topo.dimension;
     let n = 1usize << d;
-    let cs = CellStructure::build(scene, opts.width, opts.height, opts.cells);
-    let t_pre = Instant::now();
-    let work = mapping::estimate(&cs, scene, opts.width, opts.height, opts.mapping);
-    let owner = mapping::assign(&cs, &work, d);
-    let prepass_seconds = t_pre.elapsed().as_secs_f64();
-
-    // Shares and the memory check, before any node starts.
-    let shares: Vec<(CellStructure, Scene)> = (0..n as u16)
-        .map(|i| cs.restrict(scene, &|r, s| owner[r as usize][s as usize] == i))
-        .collect();
-    let share_bytes: Vec<u64> = shares
-        .iter()
-        .map(|(c, s)| node::share_bytes(c, s))
-        .collect();
-    let per_path = path_bound(scene);
-    let (worst, &most) = share_bytes
-        .iter()
-        .enumerate()
-        .max_by_key(|(_, b)| **b)
-        .expect("at least one node");
+    let plan = Plan::new(scene, topo, opts);
+    plan.check(topo)?;
+    let Plan {
+        cells: cs,
+        work,
+        owner,
+        shares,
+        window,
+        prepass_seconds,
+        replicated_bytes,
+        ..
+    } = plan;
     let budget = topo.node_memory;
-    // Every node may come to hold every path in flight: n windows.
-    let room = budget.saturating_sub(most);
-    let window = (room / (n as u64 * per_path)).min(MAX_WINDOW as u64) as u32;
-    if window == 0 {
-        let rays = n as u64 * per_path;
-        let hint = if d < MAX_DIMENSION {
-            format!(
-                "use --dim {} or --node-memory {}",
-                d + 1,
-                mib(most + rays).replace(' ', "")
-            )
-        } else {
-            format!("use --node-memory {}", mib(most + rays).replace(' ', ""))
-        };
-        return Err(Error::Capacity(format!(
-            "node {worst} needs {} for its cells and {} for one path in flight per node, budget {}; {hint}",
-            mib(most),
-            mib(rays),
-            mib(budget)
-        )));
-    }
-
     let model = LinkModel {
         latency: topo.link_latency,
         bandwidth: topo.link_bandwidth,
@@ -157,7 +225,6 @@ pub fn render(
         compute_speed: topo.compute_speed,
     };
     let (mut host, node_links) = channels(d, opts.capacity);
-    let wall = Instant::now();
     let mut run = Run::new(opts, n, model);
     std::thread::scope(|sc| -> Result<()> {
         for (i, mut links) in node_links.into_iter().enumerate() {
@@ -210,6 +277,7 @@ pub fn render(
         predicted_imbalance: mapping::predicted_imbalance(&work, &owner, d),
         messages: run.messages,
         message_bytes: run.bytes,
+        replicated_bytes,
         ..Default::default()
     };
     run.reports.sort_by_key(|r| r.node);
@@ -244,7 +312,6 @@ pub fn render(
     };
     stats.per_node = std::mem::take(&mut run.reports);
     stats.wall_seconds = start.elapsed().as_secs_f64();
-    let _ = wall;
     Ok((film, stats, cs))
 }
 

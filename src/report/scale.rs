@@ -1,0 +1,408 @@
+//! The scaling experiment (`hypercast scale`): one machine render per
+//! hypercube dimension, with the balanced mapping (`--repeat` times, the
+//! median kept) and once with the naive equal-area mapping, so that the
+//! load balance can be judged; a table, `scaling.csv` and `scaling.png`
+//! (speedup and efficiency, wall and virtual, against node count). Every
+//! render's image is checked to equal the first one's, bit for bit.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use plotters::prelude::*;
+
+use super::image_io::write_atomically;
+use crate::error::{Error, Result};
+use crate::machine::{self, MachineOptions, MachineStats, Mapping, Topology};
+use crate::scene::Scene;
+use crate::trace::Film;
+
+/// One dimension's results.
+#[derive(Clone, Debug)]
+pub struct ScaleRow {
+    pub dimension: u32,
+    pub nodes: usize,
+    /// Medians over the repeats (balanced mapping).
+    pub wall_seconds: f64,
+    pub virtual_seconds: f64,
+    pub speedup_wall: f64,
+    pub efficiency_wall: f64,
+    pub speedup_virtual: f64,
+    pub efficiency_virtual: f64,
+    pub messages: u64,
+    pub message_bytes: u64,
+    pub hops: u64,
+    /// Busy-time imbalance (max/mean) measured with each mapping, and as
+    /// the pre-pass predicted it for the balanced one.
+    pub imbalance_balanced: f64,
+    pub imbalance_equal_area: f64,
+    pub predicted_imbalance: f64,
+    pub virtual_seconds_equal_area: f64,
+    pub peak_memory_bytes: u64,
+    pub budget_bytes: u64,
+}
+
+/// Parses `--dims`: `A..B` (inclusive) or a list `0,2,5`.
+pub fn parse_dims(s: &str) -> std::result::Result<Vec<u32>, String> {
+    let bad = || format!("--dims: expected a range like 0..5 or a list like 0,2,5, got {s:?}");
+    let dims: Vec<u32> = if let Some((a, b)) = s.split_once("..") {
+        let a: u32 = a.trim().parse().map_err(|_| bad())?;
+        let b: u32 = b
+            .trim_start_matches('=')
+            .trim()
+            .parse()
+            .map_err(|_| bad())?;
+        if a > b {
+            return Err(bad());
+        }
+        (a..=b).collect()
+    } else {
+        s.split(',')
+            .map(|x| x.trim().parse().map_err(|_| bad()))
+            .collect::<std::result::Result<_, _>>()?
+    };
+    if dims.is_empty() {
+        return Err(bad());
+    }
+    if let Some(d) = dims.iter().find(|&&d| d > machine::topology::MAX_DIMENSION) {
+        return Err(format!(
+            "--dims: {d} is more than the largest dimension, {}",
+            machine::topology::MAX_DIMENSION
+        ));
+    }
+    Ok(dims)
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        (v[n / 2 - 1] + v[n / 2]) / 2.0
+    }
+}
+
+/// Runs the experiment. `progress(done, total)` counts renders.
+pub fn measure(
+    scene: &Scene,
+    topo: &Topology,
+    dims: &[u32],
+    repeat: u32,
+    opts: &MachineOptions,
+    progress: &dyn Fn(usize, usize),
+) -> Result<Vec<ScaleRow>> {
+    let total = dims.len() * (repeat.max(1) as usize + 1);
+    let mut done = 0;
+    let mut first: Option<Film> = None;
+    let mut rows: Vec<ScaleRow> = Vec::new();
+    let mut check = |film: &Film, d: u32| -> Result<()> {
+        match &first {
+            None => first = Some(film.clone()),
+            Some(f) if f.sums() != film.sums() => {
+                return Err(Error::Render(format!(
+                    "the image at --dim {d} differs from the first one: the machine broke exactness"
+                )));
+            }
+            Some(_) => {}
+        }
+        Ok(())
+    };
+    for &d in dims {
+        let t = topo.clone().with_overrides(Some(d), None)?;
+        let mut runs: Vec<MachineStats> = Vec::new();
+        for _ in 0..repeat.max(1) {
+            let (film, stats, _) = machine::render(scene, &t, opts, &|_| {})?;
+            check(&film, d)?;
+            runs.push(stats);
+            done += 1;
+            progress(done, total);
+        }
+        let naive = MachineOptions {
+            mapping: Mapping::EqualArea,
+            ..opts.clone()
+        };
+        let (film, eq, _) = machine::render(scene, &t, &naive, &|_| {})?;
+        check(&film, d)?;
+        done += 1;
+        progress(done, total);
+        let wall = median(runs.iter().map(|r| r.wall_seconds).collect());
+        let virt = median(runs.iter().map(|r| r.virtual_seconds).collect());
+        // Counts are the same every run but the busy times are not: the
+        // run nearest the median wall time stands for the rest.
+        let rep = runs
+            .iter()
+            .min_by(|a, b| {
+                (a.wall_seconds - wall)
+                    .abs()
+                    .total_cmp(&(b.wall_seconds - wall).abs())
+            })
+            .expect("at least one run");
+        let (w0, v0) = rows
+            .first()
+            .map_or((wall, virt), |r| (r.wall_seconds, r.virtual_seconds));
+        let n0 = rows.first().map_or(1usize << d, |r| r.nodes) as f64;
+        let nodes = 1usize << d;
+        let scale = nodes as f64 / n0;
+        rows.push(ScaleRow {
+            dimension: d,
+            nodes,
+            wall_seconds: wall,
+            virtual_seconds: virt,
+            speedup_wall: w0 / wall,
+            efficiency_wall: w0 / wall / scale,
+            speedup_virtual: v0 / virt,
+            efficiency_virtual: v0 / virt / scale,
+            messages: rep.messages,
+            message_bytes: rep.message_bytes,
+            hops: rep.hops,
+            imbalance_balanced: rep.imbalance,
+            imbalance_equal_area: eq.imbalance,
+            predicted_imbalance: rep.predicted_imbalance,
+            virtual_seconds_equal_area: eq.virtual_seconds,
+            peak_memory_bytes: rep
+                .per_node
+                .iter()
+                .map(|n| n.peak_memory_bytes)
+                .max()
+                .unwrap_or(0),
+            budget_bytes: t.node_memory,
+        });
+    }
+    Ok(rows)
+}
+
+const HEADER: [&str; 18] = [
+    "dimension",
+    "nodes",
+    "wall_seconds",
+    "virtual_seconds",
+    "speedup_wall",
+    "efficiency_wall",
+    "speedup_virtual",
+    "efficiency_virtual",
+    "messages",
+    "message_bytes",
+    "hops",
+    "imbalance_balanced",
+    "imbalance_equal_area",
+    "predicted_imbalance",
+    "virtual_seconds_equal_area",
+    "peak_memory_bytes",
+    "budget_bytes",
+    "peak_over_budget",
+];
+
+fn fields(r: &ScaleRow) -> [String; 18] {
+    [
+        r.dimension.to_string(),
+        r.nodes.to_string(),
+        format!("{:.4}", r.wall_seconds),
+        format!("{:.4}", r.virtual_seconds),
+        format!("{:.3}", r.speedup_wall),
+        format!("{:.3}", r.efficiency_wall),
+        format!("{:.3}", r.speedup_virtual),
+        format!("{:.3}", r.efficiency_virtual),
+        r.messages.to_string(),
+        r.message_bytes.to_string(),
+        r.hops.to_string(),
+        format!("{:.3}", r.imbalance_balanced),
+        format!("{:.3}", r.imbalance_equal_area),
+        format!("{:.3}", r.predicted_imbalance),
+        format!("{:.4}", r.virtual_seconds_equal_area),
+        r.peak_memory_bytes.to_string(),
+        r.budget_bytes.to_string(),
+        format!(
+            "{:.3}",
+            r.peak_memory_bytes as f64 / r.budget_bytes.max(1) as f64
+        ),
+    ]
+}
+
+/// The rows as CSV, one header line.
+pub fn csv(rows: &[ScaleRow]) -> String {
+    let mut s = HEADER.join(",");
+    s.push('\n');
+    for r in rows {
+        s += &fields(r).join(",");
+        s.push('\n');
+    }
+    s
+}
+
+/// The rows as an aligned text table.
+pub fn table(rows: &[ScaleRow]) -> String {
+    let cols = [0usize, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12];
+    let cells: Vec<Vec<String>> = std::iter::once(HEADER.map(String::from).to_vec())
+        .chain(rows.iter().map(|r| fields(r).to_vec()))
+        .map(|row| cols.iter().map(|&c| row[c].clone()).collect())
+        .collect();
+    let widths: Vec<usize> = (0..cols.len())
+        .map(|c| cells.iter().map(|r| r[c].len()).max().unwrap_or(0))
+        .collect();
+    let mut s = String::new();
+    for row in &cells {
+        for (c, v) in row.iter().enumerate() {
+            let _ = write!(s, "{:>w$}  ", v, w = widths[c]);
+        }
+        s = s.trim_end().to_string();
+        s.push('\n');
+    }
+    s
+}
+
+/// Writes `scaling.csv` and `scaling.png` into `dir`.
+pub fn write_outputs(dir: &Path, title: &str, rows: &[ScaleRow]) -> Result<()> {
+    let text = csv(rows);
+    write_atomically(&dir.join("scaling.csv"), |f| {
+        std::io::Write::write_all(f, text.as_bytes()).map_err(|e| e.to_string())
+    })?;
+    super::plot::write_png(&dir.join("scaling.png"), (1000, 520), |buf| {
+        draw(buf, title, rows)
+    })
+}
+
+fn draw(buf: &mut [u8], title: &str, rows: &[ScaleRow]) -> std::result::Result<(), String> {
+    let e = |x: &dyn std::fmt::Display| x.to_string();
+    let root = BitMapBackend::with_buffer(buf, (1000, 520)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let root = root.titled(title, ("sans-serif", 20)).map_err(|x| e(&x))?;
+    let (left, right) = root.split_horizontally(500);
+    let max_nodes = rows.iter().map(|r| r.nodes).max().unwrap_or(1) as f64;
+    let x_range = 0.8..(max_nodes * 1.25).max(2.0);
+    let blue = RGBColor(31, 119, 180);
+    let orange = RGBColor(255, 127, 14);
+    let grey = RGBColor(120, 120, 120);
+    // Speedup against node count, with the ideal line.
+    let top = rows
+        .iter()
+        .flat_map(|r| [r.speedup_wall, r.speedup_virtual])
+        .fold(max_nodes, f64::max)
+        * 1.25;
+    let mut c = ChartBuilder::on(&left)
+        .caption("speedup", ("sans-serif", 16))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(56)
+        .build_cartesian_2d(x_range.clone().log_scale(), (0.8..top).log_scale())
+        .map_err(|x| e(&x))?;
+    c.configure_mesh()
+        .x_desc("nodes")
+        .label_style(("sans-serif", 13))
+        .axis_desc_style(("sans-serif", 14))
+        .draw()
+        .map_err(|x| e(&x))?;
+    let ideal: Vec<(f64, f64)> = rows
+        .iter()
+        .map(|r| (r.nodes as f64, r.nodes as f64))
+        .collect();
+    c.draw_series(LineSeries::new(ideal, grey.stroke_width(1)))
+        .map_err(|x| e(&x))?
+        .label("ideal")
+        .legend(move |(x, y)| PathElement::new([(x - 10, y), (x + 10, y)], grey));
+    for (name, color, f) in [
+        (
+            "wall (host)",
+            blue,
+            (|r: &ScaleRow| r.speedup_wall) as fn(&ScaleRow) -> f64,
+        ),
+        ("virtual (model)", orange, |r: &ScaleRow| r.speedup_virtual),
+    ] {
+        let pts: Vec<(f64, f64)> = rows.iter().map(|r| (r.nodes as f64, f(r))).collect();
+        c.draw_series(LineSeries::new(pts.clone(), color.stroke_width(2)))
+            .map_err(|x| e(&x))?
+            .label(name)
+            .legend(move |(x, y)| {
+                PathElement::new([(x - 10, y), (x + 10, y)], color.stroke_width(2))
+            });
+        c.draw_series(pts.into_iter().map(|p| Circle::new(p, 4, color.filled())))
+            .map_err(|x| e(&x))?;
+    }
+    c.configure_series_labels()
+        .label_font(("sans-serif", 13))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::UpperLeft)
+        .draw()
+        .map_err(|x| e(&x))?;
+    // Efficiency, and the imbalance of both mappings.
+    let top = rows
+        .iter()
+        .flat_map(|r| {
+            [
+                r.efficiency_wall,
+                r.efficiency_virtual,
+                r.imbalance_balanced,
+                r.imbalance_equal_area,
+            ]
+        })
+        .filter(|v| v.is_finite())
+        .fold(1.0, f64::max)
+        * 1.15;
+    let mut c = ChartBuilder::on(&right)
+        .caption("efficiency and imbalance", ("sans-serif", 16))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(48)
+        .build_cartesian_2d(x_range.log_scale(), 0.0..top)
+        .map_err(|x| e(&x))?;
+    c.configure_mesh()
+        .x_desc("nodes")
+        .label_style(("sans-serif", 13))
+        .axis_desc_style(("sans-serif", 14))
+        .draw()
+        .map_err(|x| e(&x))?;
+    let green = RGBColor(44, 160, 44);
+    let red = RGBColor(214, 39, 40);
+    for (name, color, f) in [
+        (
+            "efficiency, wall",
+            blue,
+            (|r: &ScaleRow| r.efficiency_wall) as fn(&ScaleRow) -> f64,
+        ),
+        ("efficiency, virtual", orange, |r: &ScaleRow| {
+            r.efficiency_virtual
+        }),
+        ("imbalance, balanced", green, |r: &ScaleRow| {
+            r.imbalance_balanced
+        }),
+        ("imbalance, equal area", red, |r: &ScaleRow| {
+            r.imbalance_equal_area
+        }),
+    ] {
+        let pts: Vec<(f64, f64)> = rows.iter().map(|r| (r.nodes as f64, f(r))).collect();
+        c.draw_series(LineSeries::new(pts.clone(), color.stroke_width(2)))
+            .map_err(|x| e(&x))?
+            .label(name)
+            .legend(move |(x, y)| {
+                PathElement::new([(x - 10, y), (x + 10, y)], color.stroke_width(2))
+            });
+        c.draw_series(pts.into_iter().map(|p| Circle::new(p, 4, color.filled())))
+            .map_err(|x| e(&x))?;
+    }
+    c.configure_series_labels()
+        .label_font(("sans-serif", 13))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::UpperRight)
+        .draw()
+        .map_err(|x| e(&x))?;
+    root.present().map_err(|x| e(&x))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dims_parse_ranges_and_lists() {
+        assert_eq!(parse_dims("0..5"), Ok(vec![0, 1, 2, 3, 4, 5]));
+        assert_eq!(parse_dims("2..=3"), Ok(vec![2, 3]));
+        assert_eq!(parse_dims("0, 2,5"), Ok(vec![0, 2, 5]));
+        assert!(parse_dims("5..2").is_err());
+        assert!(parse_dims("x").is_err());
+        assert!(parse_dims("0..11").is_err());
+    }
+}
