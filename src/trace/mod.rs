@@ -188,6 +188,7 @@ impl<'a> Shader<'a> {
         let entering = d.dot(n) <= 0.0;
         // The normal on the side the ray arrives from.
         let nf = if entering { n } else { -n };
+        let extent = (prim.bounds.max - prim.bounds.min).max_element();
 
         let local = w * m.ambient * m.color * scene.ambient;
         for light in &scene.lights {
@@ -208,7 +209,7 @@ impl<'a> Shader<'a> {
             if c.max_element() <= 0.0 {
                 continue;
             }
-            let origin = offset_origin(ray, hit.t, p, nf);
+            let origin = offset_origin(ray, hit.t, p, nf, extent);
             spawn(RayJob {
                 ray: Ray::new(origin, light.position - origin),
                 kind: RayKind::Shadow,
@@ -227,7 +228,7 @@ impl<'a> Shader<'a> {
             let eta = if entering { 1.0 / m.ior } else { m.ior };
             match refract(d, nf, eta) {
                 Refraction::Transmitted(t) => {
-                    let origin = offset_origin(ray, hit.t, p, -nf);
+                    let origin = offset_origin(ray, hit.t, p, -nf, extent);
                     spawn(RayJob {
                         ray: Ray::new(origin, t),
                         kind: RayKind::Refracted,
@@ -242,7 +243,7 @@ impl<'a> Shader<'a> {
             }
         }
         if reflect_share > 0.0 {
-            let origin = offset_origin(ray, hit.t, p, nf);
+            let origin = offset_origin(ray, hit.t, p, nf, extent);
             spawn(RayJob {
                 ray: Ray::new(origin, reflect(d, nf)),
                 kind: RayKind::Reflected,
