@@ -11,6 +11,8 @@ mod cli;
 mod csg_props;
 #[path = "it/known_answer.rs"]
 mod known_answer;
+#[path = "it/robustness.rs"]
+mod robustness;
 #[path = "it/shading.rs"]
 mod shading;
 
