@@ -139,6 +139,23 @@ impl RayCounts {
     }
 }
 
+/// Reflected and refracted rays whose weight is below this in every channel
+/// are not spawned: Hall and Greenberg's adaptive tree depth (1983). Whitted's
+/// ray tree doubles at every surface that both reflects and transmits, so
+/// `max_depth` alone lets a hall of glass grow 2^max_depth rays per pixel
+/// (`ROBUSTNESS.md` case 26). With the cutoff, and materials whose `reflect +
+/// transmit ≤ 1`, a generation's weights sum to at most 1, so it holds fewer
+/// than `1 / MIN_WEIGHT` rays: a pixel's tree has at most `max_depth /
+/// MIN_WEIGHT` secondary rays, whatever `max_depth` allows. The rays left out
+/// carry less than a 2⁻¹⁶ share of the pixel, far below one step of an 8-bit
+/// image even near black (2⁻¹² linear).
+pub const MIN_WEIGHT: f64 = 1.0 / 65536.0;
+
+/// True when a secondary ray of weight `w` is worth tracing (`MIN_WEIGHT`).
+fn carries(w: Color) -> bool {
+    w.max_element() >= MIN_WEIGHT
+}
+
 /// Whitted's shading rules over a scene; stateless, shared by every node.
 #[derive(Clone, Copy)]
 pub struct Shader<'a> {
@@ -227,7 +244,7 @@ impl<'a> Shader<'a> {
         if m.transmit > 0.0 {
             let eta = if entering { 1.0 / m.ior } else { m.ior };
             match refract(d, nf, eta) {
-                Refraction::Transmitted(t) => {
+                Refraction::Transmitted(t) if carries(w * m.transmit) => {
                     let origin = offset_origin(ray, hit.t, p, -nf, extent);
                     spawn(RayJob {
                         ray: Ray::new(origin, t),
@@ -238,11 +255,12 @@ impl<'a> Shader<'a> {
                         t_max: f64::INFINITY,
                     });
                 }
+                Refraction::Transmitted(_) => {}
                 // Total internal reflection: the transmitted share is reflected.
                 Refraction::TotalInternal => reflect_share += m.transmit,
             }
         }
-        if reflect_share > 0.0 {
+        if reflect_share > 0.0 && carries(w * reflect_share) {
             let origin = offset_origin(ray, hit.t, p, nf, extent);
             spawn(RayJob {
                 ray: Ray::new(origin, reflect(d, nf)),
