@@ -15,6 +15,8 @@ mod known_answer;
 mod robustness;
 #[path = "it/shading.rs"]
 mod shading;
+#[path = "it/stress.rs"]
+mod stress;
 
 /// Helpers shared by the modules.
 mod util {
