@@ -30,18 +30,32 @@ fn shadow_scene(lights: &str, ball: &str) -> String {
     )
 }
 
+/// Both accelerators' statistics (they spawn the same rays: shading is
+/// theirs in common, and cells skip only primary rays that meet nothing).
+fn both(scene: &hypercast::scene::Scene) -> [RenderStats; 2] {
+    let (roth, a) = util::roth(scene, 64, 48);
+    let (cells, b) = util::cells(scene, 64, 48);
+    assert!(roth.sums() == cells.sums(), "cells differ from roth");
+    for k in [RayKind::Shadow, RayKind::Reflected, RayKind::Refracted] {
+        assert_eq!(count(&a, k), count(&b, k), "{k:?} rays");
+    }
+    [a, b]
+}
+
 #[test]
 fn no_shadow_rays_without_lights() {
     let dark = util::scene(&shadow_scene("", "color: (0.2, 0.6, 0.25), specular: 0.4"));
-    let (_, s) = util::roth(&dark, 64, 48);
+    let [s, cells] = both(&dark);
     assert_eq!(count(&s, RayKind::Shadow), 0);
+    assert_eq!(count(&cells, RayKind::Shadow), 0);
     assert_eq!(count(&s, RayKind::Primary), 64 * 48);
+    assert_eq!(cells.pixels_traced, count(&cells, RayKind::Primary));
     // The same scene lit does cast them (so the zero above means something).
     let lit = util::scene(&shadow_scene(
         "(position: (-3, -2, 6))",
         "color: (0.2, 0.6, 0.25), specular: 0.4",
     ));
-    let (_, s) = util::roth(&lit, 64, 48);
+    let [s, _] = both(&lit);
     assert!(count(&s, RayKind::Shadow) > 1000);
 }
 
@@ -52,14 +66,14 @@ fn no_refracted_rays_without_transmit_and_no_reflected_without_reflect() {
         light,
         "color: (0.2, 0.6, 0.25), specular: 0.4",
     ));
-    let (_, s) = util::roth(&matte, 64, 48);
+    let [s, _] = both(&matte);
     assert_eq!(
         (count(&s, RayKind::Reflected), count(&s, RayKind::Refracted)),
         (0, 0)
     );
 
     let mirror = util::scene(&shadow_scene(light, "reflect: 0.8"));
-    let (_, s) = util::roth(&mirror, 64, 48);
+    let [s, _] = both(&mirror);
     assert!(count(&s, RayKind::Reflected) > 100);
     assert_eq!(
         count(&s, RayKind::Refracted),
@@ -68,7 +82,7 @@ fn no_refracted_rays_without_transmit_and_no_reflected_without_reflect() {
     );
 
     let glass = util::scene(&shadow_scene(light, "transmit: 0.9, ior: 1.5"));
-    let (_, s) = util::roth(&glass, 64, 48);
+    let [s, _] = both(&glass);
     assert!(count(&s, RayKind::Refracted) > 100);
     // A solid sphere seen from outside never reflects totally inside: the
     // internal angle equals the refraction angle, below the critical one.
