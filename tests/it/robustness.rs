@@ -18,6 +18,7 @@ use hypercast::scene::Scene;
 use hypercast::trace::{Film, Hit, Refraction, Tracer, offset_origin, refract};
 
 use crate::cells::{assert_renders_equal, hits_along, structures};
+use crate::csg_props::Rng;
 use crate::util;
 
 // ---------------------------------------------------------------------------
@@ -647,35 +648,6 @@ fn case_23_scaled_tiny_and_huge_renders_the_same() {
 // ---------------------------------------------------------------------------
 // ROBUSTNESS.md 24: spawned rays never hit the surface they leave.
 
-/// A small xorshift generator (fixed seed, no dependency).
-struct Rng(u64);
-
-impl Rng {
-    fn unit(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.unit()
-    }
-    /// A uniformly random unit vector.
-    fn direction(&mut self) -> Vec3 {
-        loop {
-            let d = Vec3::new(
-                self.range(-1.0, 1.0),
-                self.range(-1.0, 1.0),
-                self.range(-1.0, 1.0),
-            );
-            let l = d.length();
-            if l > 0.1 && l <= 1.0 {
-                return d / l;
-            }
-        }
-    }
-}
-
 /// pbrt's re-intersection test: spheres and cylinders of radius
 /// 10^U(−6, 6), under random rotations, scales and translations; at a hit,
 /// 1000 rays leave from the offset origin on the outer side and must not
@@ -692,22 +664,10 @@ fn case_24_spawned_rays_never_hit_the_surface_they_leave() {
         let scale = if uniform {
             Vec3::splat(rng.range(0.5, 2.0))
         } else {
-            Vec3::new(
-                rng.range(0.5, 2.0),
-                rng.range(0.5, 2.0),
-                rng.range(0.5, 2.0),
-            )
+            rng.vec(0.5, 2.0)
         };
-        let rotate = Vec3::new(
-            rng.range(0.0, 360.0),
-            rng.range(0.0, 360.0),
-            rng.range(0.0, 360.0),
-        );
-        let translate = Vec3::new(
-            rng.range(-10.0, 10.0),
-            rng.range(-10.0, 10.0),
-            rng.range(-10.0, 10.0),
-        ) * r;
+        let rotate = rng.vec(0.0, 360.0);
+        let translate = rng.vec(-10.0, 10.0) * r;
         let shape = if case % 2 == 0 {
             format!("Sphere(center: (0, 0, 0), radius: {r:?})")
         } else {
