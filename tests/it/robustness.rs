@@ -386,8 +386,8 @@ fn csg_scene(objects: &str) -> Scene {
 
 /// POV-Ray's speckles: a hole whose cylinder's caps lie exactly in the
 /// box's faces renders exactly as one whose cylinder pokes out, whether the
-/// cylinder is given directly, scaled from a unit cylinder, or turned into
-/// place by quarter turns.
+/// cylinder is given directly, scaled from a unit cylinder, turned into
+/// place by quarter turns, or the whole object is turned at any angle.
 #[test]
 fn case_09_hole_with_coincident_caps_has_no_speckles() {
     for (size, r) in [(1.0, 0.5), (3.0, 0.25), (0.1, 0.07)] {
@@ -431,6 +431,20 @@ fn case_09_hole_with_coincident_caps_has_no_speckles() {
             let scene = moved(csg_scene(&boxed(&c)));
             let got = assert_renders_equal(&scene, 48, 48).0;
             assert_same_picture(&got, &want, &c);
+        }
+        // The whole object turned at angles that round: box and cylinder
+        // then meet rays in their common object space, so the caps still
+        // agree with the faces bit for bit.
+        for rotate in ["(30, 40, 50)", "(45, 0, 0)", "(10, 20, 0)"] {
+            let turned = |h: f64| {
+                moved(csg_scene(&format!(
+                    "Transform(rotate: {rotate}, child: {})",
+                    boxed(&cyl(h))
+                )))
+            };
+            let want = assert_renders_equal(&turned(size * 1.001), 48, 48).0;
+            let got = assert_renders_equal(&turned(size), 48, 48).0;
+            assert_same_picture(&got, &want, &format!("turned by {rotate}"));
         }
     }
 }
@@ -758,8 +772,9 @@ fn case_24_spawned_rays_never_hit_the_surface_they_leave() {
 // ---------------------------------------------------------------------------
 // ROBUSTNESS.md 29: a closed mesh crossed through its edges and vertices.
 
-/// The cube `[−1, 1]³` as 12 triangles, each face split along a diagonal.
-fn triangle_cube() -> String {
+/// The cube `[−1, 1]³` as 12 triangles, each face split along a diagonal,
+/// or as 6 square polygons (which the loader triangulates).
+fn mesh_cube(polygons: bool) -> String {
     let mut s = String::new();
     for axis in 0..3 {
         for side in [-1.0, 1.0] {
@@ -777,6 +792,11 @@ fn triangle_cube() -> String {
                 corner(1.0, 1.0),
                 corner(-1.0, 1.0),
             ];
+            if polygons {
+                let vs: Vec<String> = q.iter().map(|p| v(*p)).collect();
+                s += &format!("Polygon(vertices: [{}]),", vs.join(", "));
+                continue;
+            }
             for [i, j, k] in [[0, 1, 2], [0, 2, 3]] {
                 s += &format!("Triangle(a: {}, b: {}, c: {}),", v(q[i]), v(q[j]), v(q[k]));
             }
@@ -787,14 +807,21 @@ fn triangle_cube() -> String {
 
 /// Rays through the mesh's edges, its vertices and the faces' inner
 /// diagonals cross it exactly twice (once in, once out), and its picture
-/// covers exactly the pixels the solid box covers.
+/// covers exactly the pixels the solid box covers; for triangles and for
+/// polygons.
 #[test]
-fn case_29_triangle_cube_is_crossed_once_per_side() {
+fn case_29_closed_meshes_are_crossed_once_per_side() {
+    for polygons in [false, true] {
+        closed_mesh_is_crossed_once_per_side(polygons);
+    }
+}
+
+fn closed_mesh_is_crossed_once_per_side(polygons: bool) {
     let cam = camera(Vec3::new(4.0, -3.0, 5.0), Vec3::ZERO, Vec3::Z, 50.0, 33, 33);
     let mesh = util::scene(&format!(
         "(camera: {cam}, background: (0, 0, 1), materials: {{ \"flat\": (color: (1, 0, 0), ambient: 1, diffuse: 0) }},
           objects: [Union(material: \"flat\", children: [{}])])",
-        triangle_cube()
+        mesh_cube(polygons)
     ));
     let mut rays = vec![
         (Vec3::splat(5.0), -Vec3::ONE),
@@ -822,7 +849,7 @@ fn case_29_triangle_cube_is_crossed_once_per_side() {
     }
     for (o, d) in rays {
         let got = pts(&along(&mesh, &Ray::new(o, d)));
-        assert_eq!(got.len(), 2, "{o} {d}: {got:?}");
+        assert_eq!(got.len(), 2, "polygons {polygons}, {o} {d}: {got:?}");
         assert!((got[1].1 - got[0].1) > 0.0, "{o} {d}: {got:?}");
     }
     let film = assert_renders_equal(&mesh, 33, 33).0;
@@ -831,5 +858,9 @@ fn case_29_triangle_cube_is_crossed_once_per_side() {
           objects: [Box(min: (-1, -1, -1), max: (1, 1, 1), material: \"flat\")])"
     ));
     let (box_film, _) = util::roth(&solid, 33, 33);
-    assert_same_picture(&film, &box_film, "triangle cube against the box");
+    assert_same_picture(
+        &film,
+        &box_film,
+        &format!("mesh cube (polygons {polygons}) against the box"),
+    );
 }
