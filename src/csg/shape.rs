@@ -109,8 +109,8 @@ const APEX: u8 = 3;
 
 impl Primitive {
     /// Places `shape` in the world by `to_world`. Where the map can be folded
-    /// into the parameters without loss (boxes under translation and positive
-    /// axis scales; spheres under similarities; cylinders and cones when
+    /// into the parameters without loss (boxes under translations, axis
+    /// scales and quarter turns; spheres under similarities; cylinders and cones when
     /// their cross-section stays circular and the map takes coordinate axes
     /// to coordinate axes (`keeps_axes`), e.g. an axis-aligned cylinder
     /// scaled equally across its axis or turned by quarter turns; triangles and
@@ -387,7 +387,9 @@ fn ear_clip(pts: &[[f64; 2]]) -> Result<Vec<[u32; 3]>, String> {
 /// `Primitive::new`); otherwise keeps the transform.
 fn bake(shape: Shape, m: &Affine) -> (Shape, Option<Affine>) {
     match shape {
-        Shape::Box { min, max } if m.is_axis_scale() => {
+        // Under scales and quarter turns a box stays axis-aligned: its
+        // corners map to the corners of a box (sorted below).
+        Shape::Box { min, max } if keeps_axes(m) => {
             let (p, q) = (m.point(min), m.point(max));
             (
                 Shape::Box {
@@ -499,6 +501,13 @@ fn keeps_axes(m: &Affine) -> bool {
     let cols = [m.linear.x_axis, m.linear.y_axis, m.linear.z_axis];
     cols.iter()
         .all(|c| c.to_array().iter().filter(|x| **x != 0.0).count() == 1)
+}
+
+/// `shape` with `m` folded into its parameters, when that is exact for it
+/// (see `Primitive::new`); `None` otherwise.
+pub fn bake_exactly(shape: Shape, m: &Affine) -> Option<Shape> {
+    let (shape, transform) = bake(shape, m);
+    transform.is_none().then_some(shape)
 }
 
 /// The radius scale when `m` maps every circle perpendicular to the axis

@@ -471,6 +471,21 @@ fn case_10_boxes_sharing_faces_combine_exactly() {
         assert_same_picture(&op("Intersection"), &right, &format!("A ∩ {b}"));
         assert_same_picture(&op("Union"), &whole, &format!("A ∪ {b}"));
     }
+    // All of it turned at angles that round: A, B and the references then
+    // share the one rotation (B's own scale is folded in first).
+    for rotate in ["(30, 40, 50)", "(0, 0, 20)"] {
+        let turned = |o: &str| render(&format!("Transform(rotate: {rotate}, child: {o})"));
+        let left = turned("Box(min: (-1, -1, -1), max: (0, 1, 1), material: \"m\")");
+        let right = turned("Box(min: (0, -1, -1), max: (1, 1, 1), material: \"m\")");
+        let whole = turned(&format!("Union(material: \"m\", children: [{a}])"));
+        for b in bs {
+            let op = |o: &str| turned(&format!("{o}(material: \"m\", children: [{a}, {b}])"));
+            let what = |o: &str| format!("{rotate}: A {o} {b}");
+            assert_same_picture(&op("Difference"), &left, &what("−"));
+            assert_same_picture(&op("Intersection"), &right, &what("∩"));
+            assert_same_picture(&op("Union"), &whole, &what("∪"));
+        }
+    }
 }
 
 /// Solids that only touch intersect in nothing: the zero-length span at
