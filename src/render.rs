@@ -117,7 +117,7 @@ where
 {
     let start = Instant::now();
     let cam = CameraFrame::new(scene, opts.width, opts.height);
-    let shader = Shader::new(scene);
+    let shader = Shader::with_samples(scene, opts.spp);
     let next_band = AtomicU32::new(0);
     let bands = opts.height.div_ceil(BAND_ROWS);
     let threads = opts.threads.max(1).min(bands.max(1) as usize);

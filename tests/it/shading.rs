@@ -202,6 +202,43 @@ fn parallel_mirrors_stop_at_max_depth_deterministically() {
     }
 }
 
+/// `MIN_WEIGHT` is a share of the sample, not of the pixel: with 1024
+/// samples a primary ray weighs 2⁻¹⁰, yet mirrors of reflect 0.5 still
+/// reflect 10 times (0.5¹⁰ is above 2⁻¹⁶), as with one sample; and a
+/// reflect of 0.25 stops after 8 bounces (0.25⁹ is below), whatever `spp`.
+#[test]
+fn the_weight_cutoff_is_relative_to_the_sample() {
+    let scene_of = |reflect: f64| {
+        util::scene(&format!(
+            r#"(
+          camera: (eye: (0, 0, 0.5), look_at: (0, 0, 0), up: (0, 1, 0), fov_y: 60, width: 2, height: 2),
+          max_depth: 10,
+          materials: {{ "m": (ambient: 0.5, diffuse: 0, reflect: {reflect:?}) }},
+          objects: [
+            Box(min: (-1000, -1000, -0.1), max: (1000, 1000, 0), material: "m"),
+            Box(min: (-1000, -1000, 1), max: (1000, 1000, 1.1), material: "m"),
+          ],
+        )"#
+        ))
+    };
+    for spp in [1u32, 16, 1024] {
+        let opts = hypercast::render::RenderOptions {
+            spp,
+            ..util::opts(2, 2)
+        };
+        let samples = 4 * u64::from(spp);
+        for (reflect, bounces) in [(0.5, 10), (0.25, 8)] {
+            let (film, s) = hypercast::render::render_roth(&scene_of(reflect), &opts, &|_| {});
+            util::assert_finite(&film);
+            assert_eq!(
+                count(&s, RayKind::Reflected),
+                samples * bounces,
+                "reflect {reflect}, spp {spp}"
+            );
+        }
+    }
+}
+
 /// Case 26, second half: a glass slab (reflect and transmit both) splits
 /// every ray in two, so a pixel's ray tree is at most a full binary tree of
 /// max_depth generations.
