@@ -9,7 +9,8 @@ use std::process::Command;
 
 use hypercast::cells::SegmentChoice;
 use hypercast::r#gen::stress::{Chain, deep_chain, mirror_hall, sphere_lattice};
-use hypercast::trace::{MIN_WEIGHT, RayKind};
+use hypercast::reference::RothTracer;
+use hypercast::trace::{CameraFrame, MIN_WEIGHT, RayJob, RayKind, Shader, Tracer};
 
 use crate::cells::assert_renders_equal_with;
 use crate::util;
@@ -130,32 +131,69 @@ fn stress_4096_by_4096_output() {
 }
 
 /// `max_depth` 64 in a closed room of mirrors: paths go 64 bounces deep
-/// (0.9^64 is above `MIN_WEIGHT`) and stop there. With a glass ball in the room every ray that meets it splits
-/// in two, 2^64 rays per pixel were it not for `MIN_WEIGHT`: each
-/// generation then holds fewer than `1 / MIN_WEIGHT` rays per pixel.
+/// (0.9^64 is above `MIN_WEIGHT`) and stop there, with exact ray counts.
+/// With a glass ball in the room every ray that meets it splits in two,
+/// 2^64 rays per pixel were it not for `MIN_WEIGHT`: generation by
+/// generation, every spawned ray carries at least `MIN_WEIGHT`, the
+/// weights sum to at most 1 (reflect + transmit ≤ 1 here), so a generation
+/// holds fewer than `1 / MIN_WEIGHT` rays, and none is left after 64.
 #[test]
 fn stress_max_depth_64_in_a_hall_of_mirrors() {
     let (w, h) = (24u32, 16u32);
     let pixels = u64::from(w * h);
-    let reflected = |d: u32, glass: bool| {
-        let scene = util::scene(&mirror_hall(d, glass, w, h));
+    let rendered = |glass: bool| {
+        let scene = util::scene(&mirror_hall(64, glass, w, h));
         let (_, stats) = util::roth(&scene, w, h);
         let (film, _) = assert_renders_equal_with(&scene, w, h, &[SegmentChoice::Sampled]);
         util::assert_finite(&film);
-        stats
+        (scene, stats)
     };
     // Nothing but mirrors: every hit reflects and sees the light, so the
     // counts are exact.
-    let hall = reflected(64, false);
+    let (_, hall) = rendered(false);
     assert_eq!(hall.rays.get(RayKind::Reflected), 64 * pixels);
     assert_eq!(hall.rays.get(RayKind::Shadow), 65 * pixels);
-    let glass = reflected(64, true);
-    let secondary = glass.rays.get(RayKind::Reflected) + glass.rays.get(RayKind::Refracted);
+    let (scene, glass) = rendered(true);
     assert!(
         glass.rays.get(RayKind::Refracted) > pixels,
         "the glass is seen"
     );
-    let bound = pixels as f64 * 64.0 / MIN_WEIGHT;
-    assert!((secondary as f64) < bound, "{secondary} secondary rays");
-    eprintln!("glass hall: {secondary} secondary rays");
+    // Each pixel's ray tree, generation by generation.
+    let shader = Shader::new(&scene);
+    let cam = CameraFrame::new(&scene, w, h);
+    let mut roth = RothTracer::new(&scene);
+    let mut widest = 0;
+    for j in 0..h {
+        for i in 0..w {
+            let mut generation = vec![cam.primary(i, j, 0.5, 0.5, 1.0)];
+            for depth in 0..=64 {
+                let total: f64 = generation.iter().map(|r| r.weight().max_element()).sum();
+                assert!(
+                    total <= 1.0 + 1e-6,
+                    "pixel ({i}, {j}) depth {depth}: {total}"
+                );
+                assert!((generation.len() as f64) < 1.0 / MIN_WEIGHT);
+                widest = widest.max(generation.len());
+                let mut next = Vec::new();
+                for job in &generation {
+                    let Some(hit) = roth.nearest(&job.ray, 0.0, job.t_max) else {
+                        continue;
+                    };
+                    shader.shade(job, &hit, &mut |spawned: RayJob| {
+                        if spawned.kind != RayKind::Shadow {
+                            assert!(spawned.weight().max_element() >= MIN_WEIGHT);
+                            next.push(spawned);
+                        }
+                    });
+                }
+                generation = next;
+            }
+            assert!(
+                generation.is_empty(),
+                "pixel ({i}, {j}): rays beyond max_depth"
+            );
+        }
+    }
+    // Mirror paths stay single; the glass makes a generation wider.
+    assert!(widest > 1, "no ray ever split");
 }
