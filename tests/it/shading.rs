@@ -145,24 +145,34 @@ fn max_depth_bounds_recursion_between_facing_mirrors() {
     assert_eq!(counts[9], counts[10], "{counts:?}");
 }
 
+/// Mirrors at z = 0 and z = 1 (of `material`), the eye between them looking
+/// straight down (24×16): every ray bounces until `max_depth` stops it.
+fn parallel_mirrors(max_depth: u32, lights: &str, material: &str) -> hypercast::scene::Scene {
+    util::scene(&format!(
+        r#"(
+      camera: (eye: (0, 0, 0.5), look_at: (0, 0, 0), up: (0, 1, 0), fov_y: 60, width: 24, height: 16),
+      max_depth: {max_depth},
+      lights: [{lights}],
+      materials: {{ "m": ({material}) }},
+      objects: [
+        Box(min: (-1000, -1000, -0.1), max: (1000, 1000, 0), material: "m"),
+        Box(min: (-1000, -1000, 1), max: (1000, 1000, 1.1), material: "m"),
+      ],
+    )"#
+    ))
+}
+
 /// Case 26: parallel mirrors at z = 0 and z = 1, the eye between them
 /// looking straight down: every ray bounces until max_depth stops it, so the
 /// count is exact, and the image is the same however threads interleave.
 #[test]
 fn parallel_mirrors_stop_at_max_depth_deterministically() {
     let scene_at = |d: u32| {
-        util::scene(&format!(
-            r#"(
-          camera: (eye: (0, 0, 0.5), look_at: (0, 0, 0), up: (0, 1, 0), fov_y: 60, width: 24, height: 16),
-          max_depth: {d},
-          lights: [(position: (0.2, 0.1, 0.5))],
-          materials: {{ "m": (color: (0.8, 0.9, 1), ambient: 0.05, diffuse: 0.1, reflect: 0.9) }},
-          objects: [
-            Box(min: (-1000, -1000, -0.1), max: (1000, 1000, 0), material: "m"),
-            Box(min: (-1000, -1000, 1), max: (1000, 1000, 1.1), material: "m"),
-          ],
-        )"#
-        ))
+        parallel_mirrors(
+            d,
+            "(position: (0.2, 0.1, 0.5))",
+            "color: (0.8, 0.9, 1), ambient: 0.05, diffuse: 0.1, reflect: 0.9",
+        )
     };
     let pixels = 24 * 16u64;
     for d in [0u32, 1, 5, 20] {
@@ -209,17 +219,11 @@ fn parallel_mirrors_stop_at_max_depth_deterministically() {
 #[test]
 fn the_weight_cutoff_is_relative_to_the_sample() {
     let scene_of = |reflect: f64| {
-        util::scene(&format!(
-            r#"(
-          camera: (eye: (0, 0, 0.5), look_at: (0, 0, 0), up: (0, 1, 0), fov_y: 60, width: 2, height: 2),
-          max_depth: 10,
-          materials: {{ "m": (ambient: 0.5, diffuse: 0, reflect: {reflect:?}) }},
-          objects: [
-            Box(min: (-1000, -1000, -0.1), max: (1000, 1000, 0), material: "m"),
-            Box(min: (-1000, -1000, 1), max: (1000, 1000, 1.1), material: "m"),
-          ],
-        )"#
-        ))
+        parallel_mirrors(
+            10,
+            "",
+            &format!("ambient: 0.5, diffuse: 0, reflect: {reflect:?}"),
+        )
     };
     for spp in [1u32, 16, 1024] {
         let opts = hypercast::render::RenderOptions {
