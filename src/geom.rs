@@ -164,6 +164,19 @@ impl Aabb {
     }
 }
 
+/// The sine and cosine of an angle in degrees, exact for multiples of 90°.
+/// `cos(90°)` computed in radians is 6.1e-17, not 0: a primitive turned by a
+/// quarter turn would be tilted by that much, so its faces would no longer
+/// coincide with another's, and a cylinder's caps would cut a box's faces
+/// at slightly different `t` (speckles, `ROBUSTNESS.md` cases 9-10).
+fn sin_cos_deg(deg: f64) -> (f64, f64) {
+    let quarter = deg.rem_euclid(360.0) / 90.0;
+    if quarter.fract() == 0.0 {
+        return [(0.0, 1.0), (1.0, 0.0), (0.0, -1.0), (-1.0, 0.0)][quarter as usize % 4];
+    }
+    deg.to_radians().sin_cos()
+}
+
 /// An affine map `p ↦ M·p + t` with its inverse and the normal matrix
 /// (inverse transpose of `M`), so that normals map correctly under
 /// non-uniform scale.
@@ -186,9 +199,14 @@ impl Affine {
     /// `SCENE_FORMAT.md`'s Transform: scale, then rotate about x, then y,
     /// then z (degrees), then translate.
     pub fn from_srt(scale: Vec3, rotate_deg: Vec3, translate: Vec3) -> Affine {
-        let r = DMat3::from_rotation_z(rotate_deg.z.to_radians())
-            * DMat3::from_rotation_y(rotate_deg.y.to_radians())
-            * DMat3::from_rotation_x(rotate_deg.x.to_radians());
+        let (sx, cx) = sin_cos_deg(rotate_deg.x);
+        let (sy, cy) = sin_cos_deg(rotate_deg.y);
+        let (sz, cz) = sin_cos_deg(rotate_deg.z);
+        // glam's `from_rotation_{x,y,z}`, with exact sines and cosines.
+        let rx = DMat3::from_cols(Vec3::X, Vec3::new(0.0, cx, sx), Vec3::new(0.0, -sx, cx));
+        let ry = DMat3::from_cols(Vec3::new(cy, 0.0, -sy), Vec3::Y, Vec3::new(sy, 0.0, cy));
+        let rz = DMat3::from_cols(Vec3::new(cz, sz, 0.0), Vec3::new(-sz, cz, 0.0), Vec3::Z);
+        let r = rz * ry * rx;
         let linear = r * DMat3::from_diagonal(scale);
         Affine::from_linear(linear, translate)
     }
@@ -315,5 +333,23 @@ mod tests {
         assert!((a.inverse_point(p) - Vec3::X).length() < 1e-12);
         assert!(a.similarity_scale().is_none());
         assert!(!a.is_axis_scale());
+    }
+
+    #[test]
+    fn quarter_turns_are_exact() {
+        for (deg, want) in [
+            (90.0, Vec3::new(0.0, 0.0, 1.0)),
+            (-270.0, Vec3::new(0.0, 0.0, 1.0)),
+            (180.0, Vec3::new(0.0, -1.0, 0.0)),
+            (450.0, Vec3::new(0.0, 0.0, 1.0)),
+            (-90.0, Vec3::new(0.0, 0.0, -1.0)),
+        ] {
+            let a = Affine::from_srt(Vec3::ONE, Vec3::new(deg, 0.0, 0.0), Vec3::ZERO);
+            assert_eq!(a.point(Vec3::Y), want, "{deg}°");
+            assert_eq!(a.similarity_scale(), Some(1.0), "{deg}°");
+        }
+        // Other angles are unchanged: the same as glam's rotation.
+        let a = Affine::from_srt(Vec3::ONE, Vec3::new(0.0, 0.0, 30.0), Vec3::ZERO);
+        assert_eq!(a.linear, DMat3::from_rotation_z(30f64.to_radians()));
     }
 }

@@ -3,6 +3,7 @@
 //! hypercube machine (`machine`) renders the same rays as messages; both
 //! produce bit-identical films because contributions sum in fixed point.
 
+use std::sync::Mutex;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Instant;
 
@@ -116,16 +117,19 @@ where
 {
     let start = Instant::now();
     let cam = CameraFrame::new(scene, opts.width, opts.height);
-    let shader = Shader::new(scene);
+    let shader = Shader::with_samples(scene, opts.spp);
     let next_band = AtomicU32::new(0);
     let bands = opts.height.div_ceil(BAND_ROWS);
     let threads = opts.threads.max(1).min(bands.max(1) as usize);
-    let results: Vec<(Vec<Film>, RenderStats, TraceCounters)> = std::thread::scope(|s| {
+    // Bands are added to the image as they finish, not kept until the end:
+    // a 4096×4096 film is 400 MB, and a second copy in bands doubled the
+    // peak (`docs/robustness.md`). Fixed-point sums make the order free.
+    let image = Mutex::new(Film::new(opts.width, opts.height));
+    let results: Vec<(RenderStats, TraceCounters)> = std::thread::scope(|s| {
         let handles: Vec<_> = (0..threads)
             .map(|_| {
                 s.spawn(|| {
                     let mut tracer = make_tracer();
-                    let mut films = Vec::new();
                     let mut stats = RenderStats::default();
                     let mut stack = Vec::new();
                     let mut jobs = Vec::new();
@@ -164,11 +168,11 @@ where
                                 }
                             }
                         }
-                        films.push(film);
+                        image.lock().expect("a render thread panicked").merge(&film);
                         progress(rows);
                     }
                     let c = tracer.counters();
-                    (films, stats, c)
+                    (stats, c)
                 })
             })
             .collect();
@@ -177,12 +181,9 @@ where
             .map(|h| h.join().expect("render thread panicked"))
             .collect()
     });
-    let mut film = Film::new(opts.width, opts.height);
+    let film = image.into_inner().expect("a render thread panicked");
     let mut stats = RenderStats::default();
-    for (films, s, c) in &results {
-        for f in films {
-            film.merge(f);
-        }
+    for (s, c) in &results {
         stats.rays.merge(&s.rays);
         stats.pixels_traced += s.pixels_traced;
         stats.pixels_background += s.pixels_background;

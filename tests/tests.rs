@@ -13,8 +13,12 @@ mod csg_props;
 mod known_answer;
 #[path = "it/machine.rs"]
 mod machine;
+#[path = "it/robustness.rs"]
+mod robustness;
 #[path = "it/shading.rs"]
 mod shading;
+#[path = "it/stress.rs"]
+mod stress;
 
 /// Helpers shared by the modules.
 mod util {

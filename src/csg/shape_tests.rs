@@ -559,10 +559,24 @@ fn baking_keeps_circular_cylinders_and_cones_exact() {
             capped: true
         }
     );
-    // A rotation with uniform scale keeps a tilted cylinder a cylinder.
+    // A tilted cylinder stays in object space, as a box under the same
+    // transform must (case 9 turned: their planes then agree bit for bit);
+    // a quarter turn keeps the axes and bakes.
     let m = Affine::from_srt(Vec3::splat(2.0), v(30.0, 40.0, 50.0), v(1.0, 1.0, 1.0));
-    let tilted = placed(unit, &m);
-    assert!(tilted.transform.is_none());
+    let tilted = placed(unit.clone(), &m);
+    assert_eq!((&tilted.shape, tilted.transform), (&unit, Some(m)));
+    let m = Affine::from_srt(Vec3::splat(2.0), v(90.0, 0.0, 0.0), v(1.0, 1.0, 1.0));
+    let turned = placed(unit, &m);
+    assert!(turned.transform.is_none());
+    assert_eq!(
+        turned.shape,
+        Shape::Cylinder {
+            base: v(1.0, 3.0, 1.0),
+            top: v(1.0, -1.0, 1.0),
+            radius: 2.0,
+            capped: true
+        }
+    );
     // A triangle is baked under any affine map.
     let m = Affine::from_srt(v(2.0, 1.0, 3.0), v(10.0, 0.0, 0.0), Vec3::ZERO);
     let t = placed(

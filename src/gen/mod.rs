@@ -5,5 +5,6 @@
 
 pub mod random;
 pub mod sphereflake;
+pub mod stress;
 
 pub use random::{CameraPlacement, MAX_TREE_DEPTH, RandomCsgOptions, random_csg};

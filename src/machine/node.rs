@@ -165,7 +165,7 @@ impl<'a> Node<'a> {
             share,
             links,
             tracer: CellTracer::new(&share.cells, &share.scene),
-            shader: Shader::new(&share.scene),
+            shader: Shader::with_samples(&share.scene, share.spp),
             cam: CameraFrame::new(&share.scene, share.width, share.height),
             primaries: Primaries::new(share, id),
             credits: share.window,

@@ -6,7 +6,8 @@
 use std::io::BufWriter;
 use std::path::Path;
 
-use image::{ImageFormat, Rgb32FImage, RgbImage};
+use image::codecs::pnm::{PnmEncoder, PnmSubtype, SampleEncoding};
+use image::{ExtendedColorType, ImageEncoder, ImageFormat, Rgb32FImage, RgbImage};
 
 use crate::error::{Error, Result};
 
@@ -81,12 +82,15 @@ pub fn write_image(path: &Path, width: u32, height: u32, linear: &[[f32; 3]]) ->
             OutputFormat::Png | OutputFormat::Ppm => {
                 let img = RgbImage::from_raw(width, height, to_srgb8(linear))
                     .ok_or("image size mismatch")?;
-                let f = if format == OutputFormat::Png {
-                    ImageFormat::Png
+                if format == OutputFormat::Png {
+                    img.write_to(&mut w, ImageFormat::Png)
                 } else {
-                    ImageFormat::Pnm
-                };
-                img.write_to(&mut w, f)
+                    // `ImageFormat::Pnm` alone writes PAM (`P7`), which PPM
+                    // readers refuse: ask for the binary pixmap, `P6`.
+                    PnmEncoder::new(&mut w)
+                        .with_subtype(PnmSubtype::Pixmap(SampleEncoding::Binary))
+                        .write_image(img.as_raw(), width, height, ExtendedColorType::Rgb8)
+                }
             }
             OutputFormat::Exr => {
                 let data: Vec<f32> = linear.iter().flatten().copied().collect();

@@ -479,9 +479,57 @@ struct Inherited<'a> {
     material: MaterialId,
     /// Object-to-world map of the node (composed `Transform`s above it).
     to_world: &'a Affine,
+    /// The innermost `Transform` above, linked to those above it.
+    transforms: Option<&'a TransformLink<'a>>,
     /// The nearest `Intersection` or `Difference` above, if any: surfaces
     /// are forbidden below it.
     solid_only: Option<(&'a Place<'a>, &'static str)>,
+}
+
+/// One `Transform` on the way down from the top.
+struct TransformLink<'a> {
+    /// The transform's own map.
+    own: Affine,
+    /// The map of everything down to and including it.
+    to_world: Affine,
+    parent: Option<&'a TransformLink<'a>>,
+}
+
+/// How many transforms above a primitive `place` looks through.
+const BAKE_LOOKUP: usize = 64;
+
+/// Places a primitive under the transforms above it, folding the innermost
+/// ones into its parameters first, as far as that is exact for the shape
+/// (`csg::shape::bake_exactly`), and keeping the rest as its transform.
+///
+/// Composing first and baking the composition is not the same: a box
+/// carved by a scaled unit box, the two under one rotation (case 10
+/// turned), had the rotation composed with the scale, so neither could be
+/// baked and each met rays in its own object space, mapped by differently
+/// rounded matrices; the shared faces speckled. Baking the scale first
+/// leaves both under the very same rotation, so they meet the same mapped
+/// ray and their faces agree bit for bit. Only the `BAKE_LOOKUP` innermost
+/// transforms are looked through, so deep chains of transforms over many
+/// primitives stay linear.
+fn place_primitive(shape: Shape, up: &Inherited<'_>, material: MaterialId) -> Primitive {
+    let mut shape = shape;
+    let mut link = up.transforms;
+    let mut inner = Affine::IDENTITY;
+    for _ in 0..BAKE_LOOKUP {
+        let Some(l) = link else { break };
+        let candidate = l.own.then_inner(&inner);
+        match crate::csg::shape::bake_exactly(shape.clone(), &candidate) {
+            Some(_) => inner = candidate,
+            None => break,
+        }
+        link = l.parent;
+    }
+    let outer = link.map_or(Affine::IDENTITY, |l| l.to_world);
+    if !inner.is_identity() {
+        shape = crate::csg::shape::bake_exactly(shape, &inner)
+            .expect("the inner transforms were checked to bake");
+    }
+    Primitive::new(shape, &outer, material)
 }
 
 struct Compiler<'m> {
@@ -545,6 +593,7 @@ fn compile(model: &SceneFile, file: &Path) -> Result<(Scene, Vec<String>)> {
     let top = Inherited {
         material: MaterialId::DEFAULT,
         to_world: &Affine::IDENTITY,
+        transforms: None,
         solid_only: None,
     };
     let mut roots = Vec::with_capacity(model.objects.len());
@@ -977,6 +1026,7 @@ impl<'m> Compiler<'m> {
                 let below = Inherited {
                     material,
                     to_world: up.to_world,
+                    transforms: up.transforms,
                     solid_only,
                 };
                 let mut ids = Vec::with_capacity(children.len());
@@ -1028,15 +1078,21 @@ impl<'m> Compiler<'m> {
                     step: Step::TransformChild,
                     parent: Some(place),
                 };
+                let link = TransformLink {
+                    own,
+                    to_world,
+                    parent: up.transforms,
+                };
                 let below = Inherited {
                     material,
-                    to_world: &to_world,
+                    to_world: &link.to_world,
+                    transforms: Some(&link),
                     solid_only: up.solid_only,
                 };
                 return self.node(child, &child_place, below);
             }
         };
-        let prim = Primitive::new(shape, up.to_world, material);
+        let prim = place_primitive(shape, &up, material);
         // Bounds are finite, or `Aabb::EMPTY` for a primitive that holds
         // nothing; anything else means the numbers overflowed on the way.
         let b = prim.bounds;
@@ -1632,6 +1688,37 @@ mod tests {
         r.push_str("])");
         j.push_str("]}");
         (r, j)
+    }
+
+    #[test]
+    fn inner_transforms_are_baked_before_outer_ones() {
+        // A scaled unit box under a rotation: the scale is folded into the
+        // box, the rotation kept, so it shares its object space with any
+        // other primitive under that rotation (`ROBUSTNESS.md` case 10).
+        let s = load_ok(&ron(
+            "Transform(rotate: (30, 40, 50), child: Union(children: [
+               Box(min: (-1, -1, -1), max: (1, 1, 1)),
+               Transform(scale: (1, 2, 2), translate: (0, -1, -1),
+                 child: Box(min: (0, 0, 0), max: (1, 1, 1)))]))",
+        ));
+        let rotation = Affine::from_srt(Vec3::ONE, Vec3::new(30.0, 40.0, 50.0), Vec3::ZERO);
+        let b = &s.primitives[1];
+        assert_eq!(
+            b.shape,
+            Shape::Box {
+                min: Vec3::new(0.0, -1.0, -1.0),
+                max: Vec3::ONE
+            }
+        );
+        assert_eq!(b.transform, Some(rotation));
+        assert_eq!(s.primitives[0].transform, Some(rotation));
+        // Everything bakes when everything can: translations over a box.
+        let s = load_ok(&ron(
+            "Transform(translate: (1, 0, 0), child: Transform(scale: (2, 2, 2), \
+             child: Box(min: (0, 0, 0), max: (1, 1, 1))))",
+        ));
+        assert_eq!(s.primitives[0].transform, None);
+        assert_eq!(s.primitives[0].bounds.max, Vec3::new(3.0, 2.0, 2.0));
     }
 
     #[test]

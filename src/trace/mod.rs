@@ -139,15 +139,48 @@ impl RayCounts {
     }
 }
 
+/// Reflected and refracted rays that carry less than this share of their
+/// sample (in every channel) are not spawned: Hall and Greenberg's adaptive
+/// tree depth (1983). Whitted's ray tree doubles at every surface that both
+/// reflects and transmits, so `max_depth` alone lets a hall of glass grow
+/// 2^max_depth rays per sample (`ROBUSTNESS.md` case 26). With the cutoff,
+/// and materials whose `reflect + transmit ≤ 1`, a generation's shares sum
+/// to at most 1, so it holds fewer than `1 / MIN_WEIGHT` rays: a sample's
+/// tree has at most `max_depth / MIN_WEIGHT` secondary rays, whatever
+/// `max_depth` allows. The rays left out carry less than 2⁻¹⁶ of their
+/// sample, far below one step of an 8-bit image even near black (2⁻¹²
+/// linear). The share is of the sample, not of the pixel, so that more
+/// samples converge to the same image (`Shader::with_samples`).
+pub const MIN_WEIGHT: f64 = 1.0 / 65536.0;
+
 /// Whitted's shading rules over a scene; stateless, shared by every node.
 #[derive(Clone, Copy)]
 pub struct Shader<'a> {
     pub scene: &'a Scene,
+    /// `MIN_WEIGHT` as a ray weight: primary rays weigh `1/spp`.
+    min_weight: f64,
 }
 
 impl<'a> Shader<'a> {
+    /// Shading for renders of one sample per pixel.
     pub fn new(scene: &'a Scene) -> Self {
-        Shader { scene }
+        Shader::with_samples(scene, 1)
+    }
+
+    /// Shading for renders of `spp` samples per pixel, whose primary rays
+    /// weigh `1/spp`. Every renderer of the same image must use the same
+    /// `spp` here (as it does for the samples), or rays near the cutoff
+    /// would be traced by one and not by another.
+    pub fn with_samples(scene: &'a Scene, spp: u32) -> Self {
+        Shader {
+            scene,
+            min_weight: MIN_WEIGHT / f64::from(spp.max(1)),
+        }
+    }
+
+    /// True when a secondary ray of weight `w` is worth tracing (`MIN_WEIGHT`).
+    fn carries(&self, w: Color) -> bool {
+        w.max_element() >= self.min_weight
     }
 
     /// The contribution of a ray that met nothing below its `t_max`.
@@ -188,6 +221,7 @@ impl<'a> Shader<'a> {
         let entering = d.dot(n) <= 0.0;
         // The normal on the side the ray arrives from.
         let nf = if entering { n } else { -n };
+        let extent = (prim.bounds.max - prim.bounds.min).max_element();
 
         let local = w * m.ambient * m.color * scene.ambient;
         for light in &scene.lights {
@@ -208,7 +242,7 @@ impl<'a> Shader<'a> {
             if c.max_element() <= 0.0 {
                 continue;
             }
-            let origin = offset_origin(ray, hit.t, p, nf);
+            let origin = offset_origin(ray, hit.t, p, nf, extent);
             spawn(RayJob {
                 ray: Ray::new(origin, light.position - origin),
                 kind: RayKind::Shadow,
@@ -226,8 +260,8 @@ impl<'a> Shader<'a> {
         if m.transmit > 0.0 {
             let eta = if entering { 1.0 / m.ior } else { m.ior };
             match refract(d, nf, eta) {
-                Refraction::Transmitted(t) => {
-                    let origin = offset_origin(ray, hit.t, p, -nf);
+                Refraction::Transmitted(t) if self.carries(w * m.transmit) => {
+                    let origin = offset_origin(ray, hit.t, p, -nf, extent);
                     spawn(RayJob {
                         ray: Ray::new(origin, t),
                         kind: RayKind::Refracted,
@@ -237,12 +271,13 @@ impl<'a> Shader<'a> {
                         t_max: f64::INFINITY,
                     });
                 }
+                Refraction::Transmitted(_) => {}
                 // Total internal reflection: the transmitted share is reflected.
                 Refraction::TotalInternal => reflect_share += m.transmit,
             }
         }
-        if reflect_share > 0.0 {
-            let origin = offset_origin(ray, hit.t, p, nf);
+        if reflect_share > 0.0 && self.carries(w * reflect_share) {
+            let origin = offset_origin(ray, hit.t, p, nf, extent);
             spawn(RayJob {
                 ray: Ray::new(origin, reflect(d, nf)),
                 kind: RayKind::Reflected,

@@ -44,18 +44,34 @@ pub fn refract(d: Vec3, n: Vec3, eta: f64) -> Refraction {
     Refraction::Transmitted((d * eta + n * (eta * cos_i - cos_t)).normalize())
 }
 
-/// Relative error bound of a computed hit point, as a multiple of the
-/// magnitudes that produced it (pbrt-v4's γ(n) style, generous enough for
-/// transformed primitives).
-const POINT_ERROR: f64 = 64.0 * f64::EPSILON;
+/// Relative error of rounding a hit point `p = o + d·t` to the nearest
+/// floats (two roundings, with a margin): what `p`'s own magnitude costs.
+const ROUNDING_ERROR: f64 = 4.0 * f64::EPSILON;
 
-/// The origin of a ray spawned at `p = ray.at(t)`, pushed to the side of the
+/// Relative error bound of a computed hit distance, as a multiple of the
+/// magnitudes the intersection routines subtract and multiply: the distance
+/// travelled and the primitive's size (pbrt-v4's γ(n) style, generous enough
+/// for transformed primitives).
+const DISTANCE_ERROR: f64 = 64.0 * f64::EPSILON;
+
+/// The origin of a ray spawned at `p = ray.at(t)` on a primitive whose world
+/// bounds are `extent` wide (their largest side), pushed to the side of the
 /// unit vector `side` by the hit point's error bound and rounded away from
 /// the surface (pbrt-v4 `OffsetRayOrigin`): the new ray never re-hits the
 /// surface it leaves, and the push is far too small to skip a thin wall.
-/// The bound is relative to the magnitudes involved, never absolute.
-pub fn offset_origin(ray: &Ray, t: f64, p: Vec3, side: Vec3) -> Vec3 {
-    let err = (ray.origin.abs() + (ray.dir * t).abs() + p.abs()) * POINT_ERROR;
+///
+/// The bound is relative, never absolute, and each magnitude counts only
+/// for the error it causes. Every routine intersects differences such as
+/// `o − centre` or `face − o`, which are correctly rounded, so `t` is as
+/// accurate as the distance `|d·t|` and the primitive's size, not as the
+/// coordinates; only the rounding of `p` itself costs `|p|`. A scene moved
+/// 1e8 away is offset by a few ulps of 1e8, not by hundreds
+/// (`ROBUSTNESS.md` case 22: hundreds of ulps there are 5e-6, which moved
+/// reflections and refractions visibly).
+pub fn offset_origin(ray: &Ray, t: f64, p: Vec3, side: Vec3, extent: f64) -> Vec3 {
+    let extent = if extent.is_finite() { extent } else { 0.0 };
+    let err = p.abs() * ROUNDING_ERROR
+        + ((ray.dir * t).abs() + Vec3::splat(extent.abs())) * DISTANCE_ERROR;
     let dist = side.abs().dot(err);
     let mut o = p + side * dist;
     for a in 0..3 {
@@ -114,9 +130,16 @@ mod tests {
         let r = Ray::new(Vec3::ZERO, Vec3::X);
         for scale in [1e-6, 1.0, 1e8] {
             let p = Vec3::new(scale, 0.0, 0.0);
-            let o = offset_origin(&r, scale, p, -Vec3::X);
+            let o = offset_origin(&r, scale, p, -Vec3::X, scale);
             assert!(o.x < p.x);
             assert!((p.x - o.x) < scale * 1e-12);
         }
+        // Far from the origin, a small distance and object are offset by a
+        // few ulps of the coordinates, not by the coordinates times 64 ε.
+        let p = Vec3::new(1e8, 1e8, 1e8);
+        let r = Ray::new(p - Vec3::X, Vec3::X);
+        let o = offset_origin(&r, 1.0, p, Vec3::X, 1.0);
+        let ulp = 1e8f64.next_up() - 1e8;
+        assert!(o.x > p.x && o.x - p.x <= 8.0 * ulp, "{}", o.x - p.x);
     }
 }

@@ -41,7 +41,7 @@ fn options(width: u32, height: u32) -> RenderOptions {
 const CHOICES: [SegmentChoice; 2] = [SegmentChoice::Sampled, SegmentChoice::FewestSplits];
 
 /// The structures of `scene` for `CHOICES`.
-fn structures(scene: &Scene, width: u32, height: u32) -> Vec<CellStructure> {
+pub(crate) fn structures(scene: &Scene, width: u32, height: u32) -> Vec<CellStructure> {
     CHOICES
         .iter()
         .map(|&choice| {
@@ -89,7 +89,7 @@ fn assert_cell_bounds_not_nan(cs: &CellStructure) {
 /// Renders at `width`×`height` with Roth and with cells built by each of
 /// `choices`, and asserts identical films; returns Roth's film and the
 /// structures.
-fn assert_renders_equal_with(
+pub(crate) fn assert_renders_equal_with(
     scene: &Scene,
     width: u32,
     height: u32,
@@ -122,12 +122,16 @@ fn assert_renders_equal_with(
     (roth, out)
 }
 
-fn assert_renders_equal(scene: &Scene, width: u32, height: u32) -> (Film, Vec<CellStructure>) {
+pub(crate) fn assert_renders_equal(
+    scene: &Scene,
+    width: u32,
+    height: u32,
+) -> (Film, Vec<CellStructure>) {
     assert_renders_equal_with(scene, width, height, &CHOICES)
 }
 
 /// Checks a hit's t and normal and returns the normal (unit, finite).
-fn checked_normal(scene: &Scene, ray: &Ray, h: &Hit) -> Vec3 {
+pub(crate) fn checked_normal(scene: &Scene, ray: &Ray, h: &Hit) -> Vec3 {
     assert!(h.t.is_finite(), "t = {} for {ray:?}", h.t);
     let n = scene.primitives[h.prim.index()].normal(ray, h.t, h.part);
     let n = if h.flip { -n } else { n };
@@ -140,7 +144,7 @@ fn checked_normal(scene: &Scene, ray: &Ray, h: &Hit) -> Vec3 {
 }
 
 /// The nearest hit with `t_min < t < t_max` by both tracers, asserted equal.
-fn nearest_both(
+pub(crate) fn nearest_both(
     scene: &Scene,
     cs: &CellStructure,
     ray: &Ray,
@@ -161,7 +165,7 @@ fn nearest_both(
 
 /// Every boundary along the ray after `t_min`, by repeated `nearest` calls
 /// of both tracers (asserted equal and strictly increasing in t).
-fn hits_along(scene: &Scene, cs: &CellStructure, ray: &Ray, t_min: f64) -> Vec<Hit> {
+pub(crate) fn hits_along(scene: &Scene, cs: &CellStructure, ray: &Ray, t_min: f64) -> Vec<Hit> {
     let mut out: Vec<Hit> = Vec::new();
     let mut t = t_min;
     while let Some(h) = nearest_both(scene, cs, ray, t, f64::INFINITY) {
@@ -185,13 +189,13 @@ fn assert_hits(hits: &[Hit], expected: &[(u32, f64)]) {
 }
 
 /// A cell visited by a walk: region, cell index, entry and exit t.
-type Visit = (Region, u32, f64, f64);
+pub(crate) type Visit = (Region, u32, f64, f64);
 
 /// The cells a ray crosses after `t_min`, as `CellTracer::nearest` walks
 /// them, asserting that the walk ends within the number of cells, never
 /// visits a cell twice (cells are convex) and that the entry t never
 /// decreases.
-fn walk(cs: &CellStructure, ray: &Ray, t_min: f64) -> Vec<Visit> {
+pub(crate) fn walk(cs: &CellStructure, ray: &Ray, t_min: f64) -> Vec<Visit> {
     let cam = cs.view.ray(ray);
     let mut order = [Region::Front, Region::Back];
     if cam.d.z > 0.0 {

@@ -361,3 +361,93 @@ fn quiet_success_prints_nothing_on_stderr() {
     let o = render_ok(tmp.path(), "loud.png", &["--accel", "roth"]);
     assert!(!o.stderr.is_empty());
 }
+
+/// `--stats` says what a scene does not need, in numbers (issue 5): no
+/// shadow rays without lights, no reflected rays without `reflect`, no
+/// refracted rays without `transmit`, only the pixels that see something
+/// traced (cells), and per-cell subtrees smaller than the whole tree.
+#[test]
+fn stats_count_none_of_what_a_scene_cannot_use() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = |lights: &str, material: &str| {
+        format!(
+            "(camera: (eye: (0, -8, 2), look_at: (0, 0, 0), fov_y: 30, width: 48, height: 36),
+              lights: [{lights}], materials: {{ \"m\": ({material}) }},
+              objects: [
+                Difference(material: \"m\", children: [
+                  Sphere(center: (-1, 0, 0), radius: 0.8), Box(min: (-1, -1, 0.3), max: (0, 0, 1))]),
+                Union(material: \"m\", children: [
+                  Sphere(center: (1, 0, 0), radius: 0.5), Cylinder(base: (1, 0, -1), top: (1, 0, 1), radius: 0.2)]),
+              ])"
+        )
+    };
+    let stats = |name: &str, text: &str, accel: &str| -> serde_json::Value {
+        let file = tmp.path().join(format!("{name}.ron"));
+        std::fs::write(&file, text).unwrap();
+        let json = format!("{name}-{accel}.json");
+        let mut args = vec![
+            "render",
+            path_str(&file),
+            "-o",
+            "out.png",
+            "--accel",
+            accel,
+            "--stats",
+            &json,
+            "--quiet",
+            "--threads",
+            "2",
+        ];
+        if accel == "cells" {
+            // The paper's rule cuts the screen along every box edge, so the
+            // background around four primitives is its own cells (the
+            // default cost model may judge the cut not worth it).
+            args.extend(["--bsp", "fewest-splits"]);
+        }
+        let o = run(tmp.path(), &args);
+        assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+        serde_json::from_str(&std::fs::read_to_string(tmp.path().join(&json)).unwrap()).unwrap()
+    };
+    let lit = "(position: (3, -5, 5))";
+    let cases: [(&str, &str, &str, &[&str]); 4] = [
+        (
+            "dark",
+            "",
+            "reflect: 0.5, transmit: 0.5, ior: 1.5",
+            &["shadow"],
+        ),
+        ("matte", lit, "specular: 0.3", &["reflected", "refracted"]),
+        ("mirror", lit, "reflect: 0.6", &["refracted"]),
+        // Clear glass of ior 1 never reflects totally, so nothing reflects.
+        ("glass", lit, "transmit: 0.9, ior: 1", &["reflected"]),
+    ];
+    for (name, lights, material, zeros) in cases {
+        for accel in ["roth", "cells"] {
+            let v = stats(name, &scene(lights, material), accel);
+            let rays = &v["rays"];
+            for kind in ["primary", "shadow", "reflected", "refracted"] {
+                let n = rays[kind]
+                    .as_u64()
+                    .unwrap_or_else(|| panic!("rays.{kind}: {v}"));
+                let zero = zeros.contains(&kind);
+                assert_eq!(n == 0, zero, "{name} ({accel}): rays.{kind} = {n}");
+            }
+            let (traced, bg) = (
+                v["pixels_traced"].as_u64().unwrap(),
+                v["pixels_background"].as_u64().unwrap(),
+            );
+            assert_eq!(traced + bg, 48 * 36);
+            if accel == "cells" {
+                assert!(
+                    bg > 0 && traced > 0,
+                    "{name}: {traced} traced, {bg} background"
+                );
+                let sub = &v["subtree_nodes_per_cell"];
+                let whole = sub["whole_tree"].as_u64().unwrap();
+                assert!(sub["max"].as_u64().unwrap() < whole, "{name}: {sub}");
+            } else {
+                assert_eq!(bg, 0, "Roth traces every pixel");
+            }
+        }
+    }
+}

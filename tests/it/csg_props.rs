@@ -29,7 +29,7 @@ const BAND: f64 = 1e-9;
 const NEAR: f64 = 1e-7;
 
 /// xorshift64*: small, fixed, and the same on every platform.
-struct Rng(u64);
+pub(crate) struct Rng(pub(crate) u64);
 
 impl Rng {
     fn next_u64(&mut self) -> u64 {
@@ -43,7 +43,7 @@ impl Rng {
     fn unit(&mut self) -> f64 {
         (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
     }
-    fn range(&mut self, lo: f64, hi: f64) -> f64 {
+    pub(crate) fn range(&mut self, lo: f64, hi: f64) -> f64 {
         lo + (hi - lo) * self.unit()
     }
     fn below(&mut self, n: usize) -> usize {
@@ -52,10 +52,10 @@ impl Rng {
     fn chance(&mut self, p: f64) -> bool {
         self.unit() < p
     }
-    fn vec(&mut self, lo: f64, hi: f64) -> Vec3 {
+    pub(crate) fn vec(&mut self, lo: f64, hi: f64) -> Vec3 {
         Vec3::new(self.range(lo, hi), self.range(lo, hi), self.range(lo, hi))
     }
-    fn direction(&mut self) -> Vec3 {
+    pub(crate) fn direction(&mut self) -> Vec3 {
         loop {
             let v = self.vec(-1.0, 1.0);
             let l = v.length();

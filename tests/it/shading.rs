@@ -30,18 +30,32 @@ fn shadow_scene(lights: &str, ball: &str) -> String {
     )
 }
 
+/// Both accelerators' statistics (they spawn the same rays: shading is
+/// theirs in common, and cells skip only primary rays that meet nothing).
+fn both(scene: &hypercast::scene::Scene) -> [RenderStats; 2] {
+    let (roth, a) = util::roth(scene, 64, 48);
+    let (cells, b) = util::cells(scene, 64, 48);
+    assert!(roth.sums() == cells.sums(), "cells differ from roth");
+    for k in [RayKind::Shadow, RayKind::Reflected, RayKind::Refracted] {
+        assert_eq!(count(&a, k), count(&b, k), "{k:?} rays");
+    }
+    [a, b]
+}
+
 #[test]
 fn no_shadow_rays_without_lights() {
     let dark = util::scene(&shadow_scene("", "color: (0.2, 0.6, 0.25), specular: 0.4"));
-    let (_, s) = util::roth(&dark, 64, 48);
+    let [s, cells] = both(&dark);
     assert_eq!(count(&s, RayKind::Shadow), 0);
+    assert_eq!(count(&cells, RayKind::Shadow), 0);
     assert_eq!(count(&s, RayKind::Primary), 64 * 48);
+    assert_eq!(cells.pixels_traced, count(&cells, RayKind::Primary));
     // The same scene lit does cast them (so the zero above means something).
     let lit = util::scene(&shadow_scene(
         "(position: (-3, -2, 6))",
         "color: (0.2, 0.6, 0.25), specular: 0.4",
     ));
-    let (_, s) = util::roth(&lit, 64, 48);
+    let [s, _] = both(&lit);
     assert!(count(&s, RayKind::Shadow) > 1000);
 }
 
@@ -52,14 +66,14 @@ fn no_refracted_rays_without_transmit_and_no_reflected_without_reflect() {
         light,
         "color: (0.2, 0.6, 0.25), specular: 0.4",
     ));
-    let (_, s) = util::roth(&matte, 64, 48);
+    let [s, _] = both(&matte);
     assert_eq!(
         (count(&s, RayKind::Reflected), count(&s, RayKind::Refracted)),
         (0, 0)
     );
 
     let mirror = util::scene(&shadow_scene(light, "reflect: 0.8"));
-    let (_, s) = util::roth(&mirror, 64, 48);
+    let [s, _] = both(&mirror);
     assert!(count(&s, RayKind::Reflected) > 100);
     assert_eq!(
         count(&s, RayKind::Refracted),
@@ -68,7 +82,7 @@ fn no_refracted_rays_without_transmit_and_no_reflected_without_reflect() {
     );
 
     let glass = util::scene(&shadow_scene(light, "transmit: 0.9, ior: 1.5"));
-    let (_, s) = util::roth(&glass, 64, 48);
+    let [s, _] = both(&glass);
     assert!(count(&s, RayKind::Refracted) > 100);
     // A solid sphere seen from outside never reflects totally inside: the
     // internal angle equals the refraction angle, below the critical one.
@@ -131,24 +145,34 @@ fn max_depth_bounds_recursion_between_facing_mirrors() {
     assert_eq!(counts[9], counts[10], "{counts:?}");
 }
 
+/// Mirrors at z = 0 and z = 1 (of `material`), the eye between them looking
+/// straight down (24×16): every ray bounces until `max_depth` stops it.
+fn parallel_mirrors(max_depth: u32, lights: &str, material: &str) -> hypercast::scene::Scene {
+    util::scene(&format!(
+        r#"(
+      camera: (eye: (0, 0, 0.5), look_at: (0, 0, 0), up: (0, 1, 0), fov_y: 60, width: 24, height: 16),
+      max_depth: {max_depth},
+      lights: [{lights}],
+      materials: {{ "m": ({material}) }},
+      objects: [
+        Box(min: (-1000, -1000, -0.1), max: (1000, 1000, 0), material: "m"),
+        Box(min: (-1000, -1000, 1), max: (1000, 1000, 1.1), material: "m"),
+      ],
+    )"#
+    ))
+}
+
 /// Case 26: parallel mirrors at z = 0 and z = 1, the eye between them
 /// looking straight down: every ray bounces until max_depth stops it, so the
 /// count is exact, and the image is the same however threads interleave.
 #[test]
 fn parallel_mirrors_stop_at_max_depth_deterministically() {
     let scene_at = |d: u32| {
-        util::scene(&format!(
-            r#"(
-          camera: (eye: (0, 0, 0.5), look_at: (0, 0, 0), up: (0, 1, 0), fov_y: 60, width: 24, height: 16),
-          max_depth: {d},
-          lights: [(position: (0.2, 0.1, 0.5))],
-          materials: {{ "m": (color: (0.8, 0.9, 1), ambient: 0.05, diffuse: 0.1, reflect: 0.9) }},
-          objects: [
-            Box(min: (-1000, -1000, -0.1), max: (1000, 1000, 0), material: "m"),
-            Box(min: (-1000, -1000, 1), max: (1000, 1000, 1.1), material: "m"),
-          ],
-        )"#
-        ))
+        parallel_mirrors(
+            d,
+            "(position: (0.2, 0.1, 0.5))",
+            "color: (0.8, 0.9, 1), ambient: 0.05, diffuse: 0.1, reflect: 0.9",
+        )
     };
     let pixels = 24 * 16u64;
     for d in [0u32, 1, 5, 20] {
@@ -185,6 +209,37 @@ fn parallel_mirrors_stop_at_max_depth_deterministically() {
             c.sums() == a.sums(),
             "cells differ from roth at max_depth {d}"
         );
+    }
+}
+
+/// `MIN_WEIGHT` is a share of the sample, not of the pixel: with 1024
+/// samples a primary ray weighs 2⁻¹⁰, yet mirrors of reflect 0.5 still
+/// reflect 10 times (0.5¹⁰ is above 2⁻¹⁶), as with one sample; and a
+/// reflect of 0.25 stops after 8 bounces (0.25⁹ is below), whatever `spp`.
+#[test]
+fn the_weight_cutoff_is_relative_to_the_sample() {
+    let scene_of = |reflect: f64| {
+        parallel_mirrors(
+            10,
+            "",
+            &format!("ambient: 0.5, diffuse: 0, reflect: {reflect:?}"),
+        )
+    };
+    for spp in [1u32, 16, 1024] {
+        let opts = hypercast::render::RenderOptions {
+            spp,
+            ..util::opts(2, 2)
+        };
+        let samples = 4 * u64::from(spp);
+        for (reflect, bounces) in [(0.5, 10), (0.25, 8)] {
+            let (film, s) = hypercast::render::render_roth(&scene_of(reflect), &opts, &|_| {});
+            util::assert_finite(&film);
+            assert_eq!(
+                count(&s, RayKind::Reflected),
+                samples * bounces,
+                "reflect {reflect}, spp {spp}"
+            );
+        }
     }
 }
 

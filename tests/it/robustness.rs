@@ -1,0 +1,885 @@
+//! `ROBUSTNESS.md`'s stiff and extreme cases at scene level, for the cases
+//! no other module holds: the primitives' cases 1-8 and 29 as rays through
+//! whole scenes and as pictures (their closed forms are unit tests in
+//! `src/csg/shape_tests.rs`), coincident faces and zero-length spans (9-13),
+//! and scale (22-24). Cases 14-21, 27 and 28 are in `cells.rs`, 25-27 in
+//! `shading.rs`; `docs/robustness.md` lists them all.
+//!
+//! Every ray is asked of both accelerators (`cells::nearest_both`: equal
+//! hits, finite t, unit finite normals), every picture is rendered by both
+//! (`cells::assert_renders_equal`: bit-identical, finite pixels). Each case
+//! runs over a few variants of its numbers, since the class matters and
+//! not the one number in the catalogue.
+
+use hypercast::csg::{PrimHits, PrimId, Shape};
+use hypercast::geom::{Ray, Vec3};
+use hypercast::reference::RothTracer;
+use hypercast::scene::Scene;
+use hypercast::trace::{Film, Hit, Refraction, Tracer, offset_origin, refract};
+
+use crate::cells::{assert_renders_equal, hits_along, structures};
+use crate::csg_props::Rng;
+use crate::util;
+
+// ---------------------------------------------------------------------------
+// Helpers.
+
+/// A vector in RON, each component printed so that it parses back exactly.
+fn v(p: Vec3) -> String {
+    format!("({:?}, {:?}, {:?})", p.x, p.y, p.z)
+}
+
+/// A camera in RON. Odd sizes put the centre pixel's ray exactly on the
+/// line from `eye` to `look_at`.
+fn camera(eye: Vec3, look_at: Vec3, up: Vec3, fov: f64, w: u32, h: u32) -> String {
+    format!(
+        "(eye: {}, look_at: {}, up: {}, fov_y: {fov:?}, width: {w}, height: {h})",
+        v(eye),
+        v(look_at),
+        v(up)
+    )
+}
+
+/// A lit scene of `objects` seen by `camera`, with a blue background that no
+/// surface colour equals.
+fn scene_with(camera: &str, objects: &str) -> Scene {
+    util::scene(&format!(
+        "(camera: {camera}, background: (0.1, 0.2, 0.9), lights: [(position: (-3, -4, 6))],
+          objects: [{objects}])"
+    ))
+}
+
+/// The centre pixel of an odd-sized film.
+fn centre(film: &Film, w: u32, h: u32) -> [i64; 3] {
+    film.sums()[(h / 2 * w + w / 2) as usize]
+}
+
+fn background(scene: &Scene) -> [i64; 3] {
+    Film::quantize(scene.background)
+}
+
+/// `(primitive, t)` of each hit.
+fn pts(hits: &[Hit]) -> Vec<(u32, f64)> {
+    hits.iter().map(|h| (h.prim.0, h.t)).collect()
+}
+
+/// Every boundary along `ray` from 0, asked of Roth and of the cells of
+/// every structure of `scene` (all equal).
+fn along(scene: &Scene, ray: &Ray) -> Vec<Hit> {
+    let all: Vec<Vec<Hit>> = structures(scene, 33, 33)
+        .iter()
+        .map(|cs| hits_along(scene, cs, ray, 0.0))
+        .collect();
+    assert!(all.windows(2).all(|w| w[0] == w[1]), "{all:?}");
+    all.into_iter().next().unwrap_or_default()
+}
+
+/// Fraction of pixels whose channels differ by more than `tol`.
+fn fraction_differing(a: &Film, b: &Film, tol: f32) -> f64 {
+    let (a, b) = (a.to_linear(), b.to_linear());
+    assert_eq!(a.len(), b.len());
+    let bad = a
+        .iter()
+        .zip(&b)
+        .filter(|(p, q)| p.iter().zip(q.iter()).any(|(x, y)| (x - y).abs() > tol))
+        .count();
+    bad as f64 / a.len() as f64
+}
+
+#[track_caller]
+fn assert_rel(got: f64, want: f64, rel: f64) {
+    assert!(
+        (got - want).abs() <= rel * want.abs(),
+        "got {got:e}, want {want:e} (±{rel:e} relative)"
+    );
+}
+
+/// The same pixels, bit for bit.
+#[track_caller]
+fn assert_same_picture(a: &Film, b: &Film, what: &str) {
+    let differ = a
+        .sums()
+        .iter()
+        .zip(b.sums())
+        .filter(|(p, q)| p != q)
+        .count();
+    assert_eq!(differ, 0, "{what}: {differ} pixels differ");
+}
+
+// ---------------------------------------------------------------------------
+// ROBUSTNESS.md 1: a unit sphere 1e8 away, and a tiny one.
+
+/// The discriminant `b² − ac` of a sphere far away cancels to nothing; the
+/// hit must keep full precision (1e-15 relative), whatever the distance and
+/// the radius, and the picture shows the sphere.
+#[test]
+fn case_01_far_and_tiny_spheres_are_hit_at_full_precision() {
+    for (dist, r) in [(1e8, 1.0f64), (1e6, 1e-6), (1e12, 1e3), (3e9, 7e-4)] {
+        // A field of view four radii wide at that distance.
+        let fov = 2.0 * (4.0 * r / dist).atan().to_degrees();
+        let scene = scene_with(
+            &camera(Vec3::ZERO, Vec3::new(0.0, 0.0, dist), Vec3::Y, fov, 33, 33),
+            &format!(
+                "Sphere(center: {}, radius: {r:?})",
+                v(Vec3::new(0.0, 0.0, dist))
+            ),
+        );
+        let hits = along(&scene, &Ray::new(Vec3::ZERO, Vec3::Z));
+        let got = pts(&hits);
+        assert_eq!(got.len(), 2, "{dist:e}, {r:e}: {got:?}");
+        // 1e-15 relative is a few ulps of the distance.
+        assert_rel(got[0].1, dist - r, 1e-15);
+        assert_rel(got[1].1, dist + r, 1e-15);
+        let film = assert_renders_equal(&scene, 33, 33).0;
+        assert_ne!(centre(&film, 33, 33), background(&scene), "{dist:e}, {r:e}");
+    }
+}
+
+// ---------------------------------------------------------------------------
+// ROBUSTNESS.md 2: grazing rays a few ulps inside and outside a sphere.
+
+/// Rays at height `h` past a unit sphere hit iff `h < 1`, with the chord
+/// `2√(1 − h²)`; the tangent ray at `h = 1` sees the background.
+#[test]
+fn case_02_grazing_rays_hit_iff_inside_with_the_right_chord() {
+    let ulp = 2f64.powi(-53);
+    let mut heights: Vec<f64> = vec![1.0];
+    for k in [1.0, 2.0, 4.0, 16.0, 1024.0] {
+        heights.push(1.0 - k * ulp);
+        heights.push(1.0 + 2.0 * k * ulp);
+    }
+    for radius in [1.0, 0.001, 1000.0] {
+        for &h in &heights {
+            let y = h * radius;
+            let eye = Vec3::new(0.0, y, -10.0 * radius);
+            let scene = util::scene(&format!(
+                "(camera: {}, background: (0, 0, 1), materials: {{ \"red\": (color: (1, 0, 0), ambient: 1) }},
+                  objects: [Sphere(center: (0, 0, 0), radius: {radius:?}, material: \"red\")])",
+                camera(eye, Vec3::new(0.0, y, 0.0), Vec3::Y, 20.0, 33, 33)
+            ));
+            let got = pts(&along(&scene, &Ray::new(eye, Vec3::Z)));
+            let film = assert_renders_equal(&scene, 33, 33).0;
+            let seen = centre(&film, 33, 33) != background(&scene);
+            if y < radius {
+                assert_eq!(got.len(), 2, "h = {h:?}, r = {radius}: {got:?}");
+                // From y, not h: `h · radius` may have rounded. `radius − y`
+                // is exact (Sterbenz).
+                let chord = 2.0 * ((radius - y) * (radius + y)).sqrt();
+                assert_rel(got[1].1 - got[0].1, chord, 1e-6);
+                assert!(seen, "h = {h:?}, r = {radius}: the centre pixel misses");
+            } else {
+                assert!(got.is_empty(), "h = {h:?}, r = {radius}: {got:?}");
+                assert!(!seen, "h = {h:?}, r = {radius}: the centre pixel hits");
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------
+// ROBUSTNESS.md 3-5: a cylinder seen along its axis, in its cap planes, and
+// through its rim.
+
+const CYLINDER: &str = "Cylinder(base: (0, 0, 0), top: (0, 0, 2), radius: 1)";
+
+/// Rays parallel to the axis (`a = 0` in the quadratic) inside, on and
+/// outside the side; a nearly parallel one gives the same span.
+#[test]
+fn case_03_rays_along_a_cylinders_axis() {
+    let scene = scene_with(
+        &camera(Vec3::new(0.0, 0.0, -5.0), Vec3::ZERO, Vec3::Y, 40.0, 33, 33),
+        CYLINDER,
+    );
+    let up = |x: f64, d: Vec3| pts(&along(&scene, &Ray::new(Vec3::new(x, 0.0, -1.0), d)));
+    assert_eq!(up(0.5, Vec3::Z), [(0, 1.0), (0, 3.0)]);
+    assert_eq!(up(-0.999, Vec3::Z), [(0, 1.0), (0, 3.0)]);
+    assert_eq!(up(1.5, Vec3::Z), []);
+    let on = up(1.0, Vec3::Z);
+    assert!(on.is_empty() || on == [(0, 1.0), (0, 3.0)], "{on:?}");
+    // Continuous in the direction: tilted by 1e-20 and by 1e-300.
+    for tilt in [1e-20, 1e-300, 5e-324] {
+        for d in [Vec3::new(0.0, tilt, 1.0), Vec3::new(-tilt, tilt, 1.0)] {
+            assert_eq!(up(0.5, d), [(0, 1.0), (0, 3.0)], "{d:?}");
+        }
+    }
+    assert_renders_equal(&scene, 33, 33);
+    // Looking down the side surface itself.
+    let scene = scene_with(
+        &camera(
+            Vec3::new(1.0, 0.0, -5.0),
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::Y,
+            40.0,
+            33,
+            33,
+        ),
+        CYLINDER,
+    );
+    assert_renders_equal(&scene, 33, 33);
+}
+
+/// Rays perpendicular to the axis (a cap's `t = (h − o)/0`) between the
+/// caps and exactly in their planes.
+#[test]
+fn case_04_rays_in_the_cap_planes() {
+    for z in [0.0, 1.0, 2.0, 2.0f64.next_up(), 0.0f64.next_down()] {
+        let eye = Vec3::new(-5.0, 0.0, z);
+        let scene = scene_with(
+            &camera(eye, Vec3::new(0.0, 0.0, z), Vec3::Z, 30.0, 33, 33),
+            CYLINDER,
+        );
+        let got = pts(&along(&scene, &Ray::new(eye, Vec3::X)));
+        if z == 1.0 {
+            assert_eq!(got, [(0, 4.0), (0, 6.0)]);
+        } else if z == 0.0 || z == 2.0 {
+            // In a cap's plane: on the closed solid's surface, either is right.
+            assert!(got.is_empty() || got == [(0, 4.0), (0, 6.0)], "{got:?}");
+        } else {
+            assert!(got.is_empty(), "z = {z:?}: {got:?}");
+        }
+        assert_renders_equal(&scene, 33, 33);
+    }
+}
+
+/// A ray through the rim: the normal is the cap's or the side's, never a
+/// zero or a mixture, and the span inside is not lost.
+#[test]
+fn case_05_ray_through_the_rim() {
+    for (eye, rim, exit) in [
+        // The catalogue's ray: in at (−1, 0, 2), out of the side at (1, 0, 1.5).
+        (Vec3::new(-5.0, 0.0, 3.0), Vec3::new(-1.0, 0.0, 2.0), 1.5),
+        // Through the base rim, upwards.
+        (Vec3::new(-5.0, 0.0, -1.0), Vec3::new(-1.0, 0.0, 0.0), 1.5),
+    ] {
+        let d = rim - eye;
+        let scene = scene_with(&camera(eye, rim, Vec3::Z, 30.0, 33, 33), CYLINDER);
+        let ray = Ray::new(eye, d);
+        let hits = along(&scene, &ray);
+        let got = pts(&hits);
+        assert_eq!(got.len(), 2, "{got:?}");
+        assert_eq!(got[0].1, 1.0);
+        assert!((got[1].1 - exit).abs() < 1e-12, "{got:?}");
+        let n = crate::cells::checked_normal(&scene, &ray, &hits[0]);
+        let cap = Vec3::Z * (rim.z - 1.0).signum();
+        assert!(n == cap || n == -Vec3::X, "rim normal {n}");
+        assert_renders_equal(&scene, 33, 33);
+    }
+}
+
+// ---------------------------------------------------------------------------
+// ROBUSTNESS.md 6: a cone through its apex and along a generator.
+
+const CONE: &str = "Cone(base: (0, 0, 0), base_radius: 0, top: (0, 0, 1), top_radius: 1)";
+
+#[test]
+fn case_06_cone_apex_and_generator() {
+    let eye = Vec3::new(0.0, 0.0, -3.0);
+    let scene = scene_with(&camera(eye, Vec3::ZERO, Vec3::Y, 40.0, 33, 33), CONE);
+    // Up the axis: in at the apex (a unit normal there), out through the cap.
+    let ray = Ray::new(Vec3::new(0.0, 0.0, -1.0), Vec3::Z);
+    let hits = along(&scene, &ray);
+    assert_eq!(pts(&hits), [(0, 1.0), (0, 2.0)]);
+    for h in &hits {
+        crate::cells::checked_normal(&scene, &ray, h);
+    }
+    // Parallel to a generator (a = 0): inside for s in [−0.25, 0.5].
+    let ray = Ray::new(Vec3::new(0.0, 0.0, 0.5), Vec3::new(0.0, 1.0, 1.0));
+    let spans = RothTracer::new(&scene).spans(&ray).spans;
+    assert_eq!(spans.len(), 1, "{spans:?}");
+    assert!((spans[0].enter.t + 0.25).abs() <= 1e-12, "{spans:?}");
+    assert!((spans[0].exit.t - 0.5).abs() <= 1e-12, "{spans:?}");
+    let got = pts(&along(&scene, &ray));
+    assert_eq!(got.len(), 1, "{got:?}");
+    assert!((got[0].1 - 0.5).abs() <= 1e-12);
+    // The mirror nappe below the apex is no part of the cone.
+    let below = Ray::new(Vec3::new(0.0, -5.0, -0.5), Vec3::Y);
+    assert_eq!(pts(&along(&scene, &below)), []);
+    assert_renders_equal(&scene, 33, 33);
+    // Looking along a generator, and straight at the apex from the side.
+    for (eye, at) in [
+        (Vec3::new(0.0, -2.0, -1.5), Vec3::new(0.0, 0.0, 0.5)),
+        (Vec3::new(-4.0, 0.0, 0.0), Vec3::ZERO),
+    ] {
+        let scene = scene_with(&camera(eye, at, Vec3::Z, 40.0, 33, 33), CONE);
+        assert_renders_equal(&scene, 33, 33);
+    }
+}
+
+// ---------------------------------------------------------------------------
+// ROBUSTNESS.md 7 and 8: box edges, corners and signed zeros.
+
+const CUBE: &str = "Box(min: (-1, -1, -1), max: (1, 1, 1))";
+
+#[test]
+fn case_07_box_edge_and_corner_hits_are_exact_with_one_face() {
+    for (o, d) in [
+        (Vec3::new(-5.0, -5.0, 0.0), Vec3::new(1.0, 1.0, 0.0)),
+        (Vec3::splat(-5.0), Vec3::ONE),
+        (Vec3::splat(5.0), -Vec3::ONE),
+        (Vec3::new(0.25, 5.0, 5.0), Vec3::new(0.0, -1.0, -1.0)),
+    ] {
+        let scene = scene_with(&camera(o, o + d, Vec3::Z, 30.0, 33, 33), CUBE);
+        let ray = Ray::new(o, d);
+        let hits = along(&scene, &ray);
+        assert_eq!(pts(&hits), [(0, 4.0), (0, 6.0)], "{ray:?}");
+        for h in &hits {
+            let n = crate::cells::checked_normal(&scene, &ray, h);
+            // One of the faces meeting there: an axis, signed.
+            assert_eq!(n.abs().max_element(), 1.0, "{n}");
+            assert_eq!(n.abs().element_sum(), 1.0, "{n}");
+        }
+        assert_renders_equal(&scene, 33, 33);
+    }
+}
+
+#[test]
+fn case_08_signed_zero_directions_give_the_same_hits() {
+    let scene = scene_with(
+        &camera(
+            Vec3::new(1.0, 0.5, -5.0),
+            Vec3::new(1.0, 0.5, 0.0),
+            Vec3::Y,
+            30.0,
+            33,
+            33,
+        ),
+        "Box(min: (0, 0, 0), max: (1, 1, 1))",
+    );
+    for o in [
+        Vec3::new(1.0, 0.5, -5.0),
+        Vec3::new(0.0, 0.5, -5.0),
+        Vec3::new(1.0, 1.0, -5.0),
+    ] {
+        let plus = along(&scene, &Ray::new(o, Vec3::new(0.0, 0.0, 1.0)));
+        assert_eq!(pts(&plus), [(0, 5.0), (0, 6.0)], "{o}");
+        for d in [
+            Vec3::new(-0.0, 0.0, 1.0),
+            Vec3::new(0.0, -0.0, 1.0),
+            Vec3::new(-0.0, -0.0, 1.0),
+        ] {
+            assert_eq!(along(&scene, &Ray::new(o, d)), plus, "{o} {d:?}");
+        }
+    }
+    let outside = Vec3::new(1.5, 0.5, -5.0);
+    for dx in [0.0, -0.0] {
+        assert_eq!(
+            pts(&along(&scene, &Ray::new(outside, Vec3::new(dx, 0.0, 1.0)))),
+            []
+        );
+    }
+    assert_renders_equal(&scene, 33, 33);
+}
+
+// ---------------------------------------------------------------------------
+// ROBUSTNESS.md 9-12: coincident faces in CSG.
+
+/// A scene for the coincident-face cases: seen from above and aside, lit
+/// so that shadow rays run through the holes too.
+fn csg_scene(objects: &str) -> Scene {
+    util::scene(&format!(
+        "(camera: (eye: (0.3, 0.2, 5), look_at: (0, 0, 0), up: (0, 1, 0), fov_y: 40, width: 48, height: 48),
+          background: (0.1, 0.2, 0.9),
+          lights: [(position: (0.2, 0.1, 8)), (position: (-4, 3, 2))],
+          materials: {{ \"m\": (color: (0.9, 0.6, 0.3), specular: 0.3) }},
+          objects: [{objects}])"
+    ))
+}
+
+/// POV-Ray's speckles: a hole whose cylinder's caps lie exactly in the
+/// box's faces renders exactly as one whose cylinder pokes out, whether the
+/// cylinder is given directly, scaled from a unit cylinder, turned into
+/// place by quarter turns, or the whole object is turned at any angle.
+#[test]
+fn case_09_hole_with_coincident_caps_has_no_speckles() {
+    for (size, r) in [(1.0, 0.5), (3.0, 0.25), (0.1, 0.07)] {
+        let boxed = |cyl: &str| {
+            format!(
+                "Difference(material: \"m\", children: [Box(min: {}, max: {}), {cyl}])",
+                v(Vec3::splat(-size)),
+                v(Vec3::splat(size))
+            )
+        };
+        let cyl = |h: f64| {
+            format!(
+                "Cylinder(base: {}, top: {}, radius: {r:?})",
+                v(Vec3::new(0.0, 0.0, -h)),
+                v(Vec3::new(0.0, 0.0, h))
+            )
+        };
+        let moved = |mut s: Scene| -> Scene {
+            s.camera.eye = Vec3::new(0.3, 0.2, 5.0) * size;
+            s
+        };
+        let reference = moved(csg_scene(&boxed(&cyl(size * 1.001))));
+        let want = assert_renders_equal(&reference, 48, 48).0;
+        let variants = [
+            cyl(size),
+            // A unit cylinder scaled into place.
+            format!(
+                "Transform(scale: {}, child: Cylinder(base: (0, 0, -0.5), top: (0, 0, 0.5), radius: 1))",
+                v(Vec3::new(r, r, 2.0 * size))
+            ),
+            // Lying along y, stood up by a quarter turn about x.
+            format!(
+                "Transform(rotate: (90, 0, 0), child: Cylinder(base: {}, top: {}, radius: {r:?}))",
+                v(Vec3::new(0.0, size, 0.0)),
+                v(Vec3::new(0.0, -size, 0.0))
+            ),
+            // Turned half round about y: the caps swap places.
+            format!("Transform(rotate: (0, 180, 0), child: {})", cyl(size)),
+        ];
+        for c in variants {
+            let scene = moved(csg_scene(&boxed(&c)));
+            let got = assert_renders_equal(&scene, 48, 48).0;
+            assert_same_picture(&got, &want, &c);
+        }
+        // The whole object turned at angles that round: box and cylinder
+        // then meet rays in their common object space, so the caps still
+        // agree with the faces bit for bit.
+        for rotate in ["(30, 40, 50)", "(45, 0, 0)", "(10, 20, 0)"] {
+            let turned = |h: f64| {
+                moved(csg_scene(&format!(
+                    "Transform(rotate: {rotate}, child: {})",
+                    boxed(&cyl(h))
+                )))
+            };
+            let want = assert_renders_equal(&turned(size * 1.001), 48, 48).0;
+            let got = assert_renders_equal(&turned(size), 48, 48).0;
+            assert_same_picture(&got, &want, &format!("turned by {rotate}"));
+        }
+    }
+}
+
+/// A box cut, intersected and joined with a box that shares three of its
+/// faces (built from a scaled and translated unit box) gives exactly the
+/// box the algebra says: no slivers, no stray faces.
+#[test]
+fn case_10_boxes_sharing_faces_combine_exactly() {
+    let a = "Box(min: (-1, -1, -1), max: (1, 1, 1))";
+    let bs = [
+        "Transform(scale: (1, 2, 2), translate: (0, -1, -1), child: Box(min: (0, 0, 0), max: (1, 1, 1)))",
+        "Transform(scale: (1, 2, 2), translate: (0.5, 0, 0), child: Box(min: (-0.5, -0.5, -0.5), max: (0.5, 0.5, 0.5)))",
+        // A quarter turn about x maps [0,1]×[−1,1]² onto itself.
+        "Transform(rotate: (90, 0, 0), child: Box(min: (0, -1, -1), max: (1, 1, 1)))",
+    ];
+    let render = |objects: &str| assert_renders_equal(&csg_scene(objects), 48, 48).0;
+    let left = render("Box(min: (-1, -1, -1), max: (0, 1, 1), material: \"m\")");
+    let right = render("Box(min: (0, -1, -1), max: (1, 1, 1), material: \"m\")");
+    let whole = render(&format!("Union(material: \"m\", children: [{a}])"));
+    for b in bs {
+        let op = |o: &str| render(&format!("{o}(material: \"m\", children: [{a}, {b}])"));
+        assert_same_picture(&op("Difference"), &left, &format!("A − {b}"));
+        assert_same_picture(&op("Intersection"), &right, &format!("A ∩ {b}"));
+        assert_same_picture(&op("Union"), &whole, &format!("A ∪ {b}"));
+    }
+    // All of it turned at angles that round: A, B and the references then
+    // share the one rotation (B's own scale is folded in first).
+    for rotate in ["(30, 40, 50)", "(0, 0, 20)"] {
+        let turned = |o: &str| render(&format!("Transform(rotate: {rotate}, child: {o})"));
+        let left = turned("Box(min: (-1, -1, -1), max: (0, 1, 1), material: \"m\")");
+        let right = turned("Box(min: (0, -1, -1), max: (1, 1, 1), material: \"m\")");
+        let whole = turned(&format!("Union(material: \"m\", children: [{a}])"));
+        for b in bs {
+            let op = |o: &str| turned(&format!("{o}(material: \"m\", children: [{a}, {b}])"));
+            let what = |o: &str| format!("{rotate}: A {o} {b}");
+            assert_same_picture(&op("Difference"), &left, &what("−"));
+            assert_same_picture(&op("Intersection"), &right, &what("∩"));
+            assert_same_picture(&op("Union"), &whole, &what("∪"));
+        }
+    }
+}
+
+/// Solids that only touch intersect in nothing: the zero-length span at
+/// the contact is never drawn.
+#[test]
+fn case_11_touching_solids_intersect_in_nothing() {
+    for (eye, objects) in [
+        (
+            Vec3::new(5.0, 0.5, 0.5),
+            "Intersection(children: [Box(min: (0, 0, 0), max: (1, 1, 1)), Box(min: (1, 0, 0), max: (2, 1, 1))])",
+        ),
+        (
+            Vec3::new(5.0, 0.5, 0.5),
+            "Intersection(children: [Box(min: (1, 0, 0), max: (2, 1, 1)), \
+             Transform(translate: (-1, 0, 0), child: Box(min: (1, 0, 0), max: (2, 1, 1)))])",
+        ),
+        (
+            Vec3::new(5.0, 0.0, 0.0),
+            "Intersection(children: [Sphere(center: (0, 0, 0), radius: 1), Sphere(center: (2, 0, 0), radius: 1)])",
+        ),
+        (
+            Vec3::new(5.0, 0.5, 0.5),
+            "Difference(children: [Box(min: (0, 0, 0), max: (1, 1, 1)), Box(min: (0, 0, 0), max: (1, 1, 1))])",
+        ),
+    ] {
+        let scene = scene_with(&camera(eye, eye - Vec3::X, Vec3::Z, 40.0, 33, 33), objects);
+        assert_eq!(
+            pts(&along(&scene, &Ray::new(eye, -Vec3::X))),
+            [],
+            "{objects}"
+        );
+        let film = assert_renders_equal(&scene, 33, 33).0;
+        assert!(
+            film.sums().iter().all(|p| *p == background(&scene)),
+            "{objects}: something drawn"
+        );
+    }
+}
+
+/// Glass made of two touching boxes refracts as one box: the inner face of
+/// a union (or an assembly, which combines as a union) is gone.
+#[test]
+fn case_12_glass_union_of_touching_boxes_is_one_box() {
+    let glass = |objects: &str| {
+        util::scene(&format!(
+            "(camera: (eye: (1.3, -3, 2.5), look_at: (1, 0.5, 0.5), fov_y: 50, width: 48, height: 36),
+              background: (0.1, 0.2, 0.9),
+              lights: [(position: (-2, -3, 5))],
+              max_depth: 8,
+              materials: {{
+                \"glass\": (color: (1, 1, 1), ambient: 0, diffuse: 0.1, specular: 0.5, reflect: 0.1, transmit: 0.85, ior: 1.5),
+                \"floor\": (color: (0.9, 0.8, 0.2)),
+              }},
+              objects: [{objects}, Box(min: (-3, -3, -1), max: (5, 5, -0.5), material: \"floor\")])"
+        ))
+    };
+    let one = assert_renders_equal(
+        &glass("Box(min: (0, 0, 0), max: (2, 1, 1), material: \"glass\")"),
+        48,
+        36,
+    )
+    .0;
+    for op in ["Union", "Assembly"] {
+        let two = glass(&format!(
+            "{op}(material: \"glass\", children: [Box(min: (0, 0, 0), max: (1, 1, 1)), Box(min: (1, 0, 0), max: (2, 1, 1))])"
+        ));
+        let got = assert_renders_equal(&two, 48, 36).0;
+        assert_eq!(fraction_differing(&got, &one, 1e-6), 0.0, "{op}");
+    }
+}
+
+// ---------------------------------------------------------------------------
+// ROBUSTNESS.md 13: flat, inverted and NaN boxes.
+
+#[test]
+fn case_13_flat_boxes_are_invisible_and_bad_ones_refused() {
+    let a = "Box(min: (-1, -1, -1), max: (1, 1, 1), material: \"m\")";
+    let plain = assert_renders_equal(&csg_scene(a), 48, 48).0;
+    for sheet in [
+        "Box(min: (0, -2, -2), max: (0, 2, 2))",
+        "Box(min: (-2, -2, 1), max: (2, 2, 1))",
+        "Box(min: (0.5, 0.5, -3), max: (0.5, 0.5, 3))",
+    ] {
+        let alone = scene_with(
+            &camera(Vec3::new(0.3, 0.2, 5.0), Vec3::ZERO, Vec3::Y, 40.0, 33, 33),
+            sheet,
+        );
+        let film = assert_renders_equal(&alone, 33, 33).0;
+        assert!(
+            film.sums().iter().all(|p| *p == background(&alone)),
+            "{sheet} is visible"
+        );
+        for op in ["Difference", "Union"] {
+            let scene = csg_scene(&format!("{op}(material: \"m\", children: [{a}, {sheet}])"));
+            let got = assert_renders_equal(&scene, 48, 48).0;
+            assert_same_picture(&got, &plain, &format!("A {op} {sheet}"));
+        }
+    }
+    for (bad, says) in [
+        ("Box(min: (1, 0, 0), max: (0, 1, 1))", "min.x"),
+        ("Box(min: (0, NaN, 0), max: (1, 1, 1))", "finite"),
+        ("Box(min: (0, 0, 0), max: (1, 1, inf))", "finite"),
+    ] {
+        let text = format!(
+            "(camera: (eye: (0, -5, 0), look_at: (0, 0, 0), fov_y: 40, width: 8, height: 8), objects: [{bad}])"
+        );
+        let err = hypercast::scene::parse_scene_str(
+            &text,
+            hypercast::scene::SceneSyntax::Ron,
+            std::path::Path::new("bad.ron"),
+        )
+        .err()
+        .unwrap_or_else(|| panic!("{bad} loads"));
+        assert!(err.to_string().contains(says), "{bad}: {err}");
+    }
+}
+
+// ---------------------------------------------------------------------------
+// ROBUSTNESS.md 22 and 23: the same scene far away, tiny and huge.
+
+/// A scene with every kind of ray: a diffuse sphere casting a shadow, a
+/// mirror cut by a sphere, glass, a cylinder, a floor. `f` maps points and
+/// `s` scales lengths, so the same scene can be moved or scaled.
+fn shifted_scene(f: impl Fn(Vec3) -> Vec3, s: f64) -> Scene {
+    let p = |x: f64, y: f64, z: f64| v(f(Vec3::new(x, y, z)));
+    util::scene(&format!(
+        "(camera: (eye: {}, look_at: {}, fov_y: 45, width: 100, height: 100),
+          background: (0.3, 0.4, 0.6),
+          lights: [(position: {}), (position: {}, color: (0.5, 0.5, 0.4))],
+          materials: {{
+            \"ball\": (color: (0.8, 0.2, 0.1), specular: 0.5, shininess: 30),
+            \"mirror\": (color: (0.9, 0.9, 0.9), diffuse: 0.2, reflect: 0.6),
+            \"glass\": (color: (1, 1, 1), ambient: 0, diffuse: 0.05, reflect: 0.05, transmit: 0.85, ior: 1.5),
+          }},
+          objects: [
+            Sphere(center: {}, radius: {:?}, material: \"ball\"),
+            Difference(material: \"mirror\", children: [
+              Box(min: {}, max: {}), Sphere(center: {}, radius: {:?})]),
+            Sphere(center: {}, radius: {:?}, material: \"glass\"),
+            Cylinder(base: {}, top: {}, radius: {:?}),
+            Box(min: {}, max: {}),
+          ])",
+        p(0.3, -6.1, 3.2),
+        p(0.0, 0.0, 0.7),
+        p(-3.0, -2.5, 6.3),
+        p(4.0, -1.0, 3.0),
+        p(0.0, 0.0, 1.2),
+        0.8 * s,
+        p(1.2, -0.5, 0.0),
+        p(2.2, 0.5, 1.0),
+        p(1.7, -0.5, 1.0),
+        0.45 * s,
+        p(-1.6, 0.3, 0.6),
+        0.6 * s,
+        p(0.5, 1.5, 0.0),
+        p(0.5, 1.5, 1.5),
+        0.3 * s,
+        p(-4.0, -4.0, -0.2),
+        p(4.0, 4.0, 0.0),
+    ))
+}
+
+/// At most one pixel in 10,000 may change by more than 1e-6 (a silhouette
+/// or shadow edge that rounding moves across a pixel centre); no acne.
+#[test]
+fn case_22_translated_far_away_renders_the_same() {
+    let home = assert_renders_equal(&shifted_scene(|p| p, 1.0), 100, 100).0;
+    for shift in [1e6, 1e8, -3.3e7] {
+        let t = Vec3::new(1.0, 1.0, 1.0) * shift;
+        let far = assert_renders_equal(&shifted_scene(|p| p + t, 1.0), 100, 100).0;
+        let bad = fraction_differing(&far, &home, 1e-6);
+        assert!(
+            bad <= 1e-4,
+            "translated by {shift:e}: {bad} of pixels differ"
+        );
+    }
+}
+
+#[test]
+fn case_23_scaled_tiny_and_huge_renders_the_same() {
+    let home = assert_renders_equal(&shifted_scene(|p| p, 1.0), 100, 100).0;
+    for s in [1e-6, 1e6, 3e-9, 7e8] {
+        let scaled = assert_renders_equal(&shifted_scene(|p| p * s, s), 100, 100).0;
+        let bad = fraction_differing(&scaled, &home, 1e-6);
+        assert!(bad <= 1e-4, "scaled by {s:e}: {bad} of pixels differ");
+    }
+}
+
+// ---------------------------------------------------------------------------
+// ROBUSTNESS.md 24: spawned rays never hit the surface they leave.
+
+/// pbrt's re-intersection test: spheres and cylinders of radius
+/// 10^U(−6, 6), under random rotations, scales and translations; at a hit,
+/// 1000 rays leave from the offset origin on the outer side and must not
+/// hit the solid again, and 1000 on the inner side must first meet the
+/// surface at its far side, never at the point they left. A refracted ray
+/// through a sphere leaves it after exactly the chord `2r·cos θt`.
+#[test]
+fn case_24_spawned_rays_never_hit_the_surface_they_leave() {
+    let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
+    let (mut self_hits, mut spawned) = (0usize, 0usize);
+    for case in 0..80 {
+        let r = 10f64.powf(rng.range(-6.0, 6.0));
+        let uniform = case % 3 != 2;
+        let scale = if uniform {
+            Vec3::splat(rng.range(0.5, 2.0))
+        } else {
+            rng.vec(0.5, 2.0)
+        };
+        let rotate = rng.vec(0.0, 360.0);
+        // Near the origin at the solid's own scale, or up to 1000 away
+        // whatever its size (tiny solids far out: only self-hits are
+        // checked there, as 1e-9 of a 1e-6 chord is below the ulps of 1000).
+        let far = case % 5 == 4;
+        let translate = rng.vec(-10.0, 10.0) * if far { 100.0 } else { r };
+        let shape = if case % 2 == 0 {
+            format!("Sphere(center: (0, 0, 0), radius: {r:?})")
+        } else {
+            format!(
+                "Cylinder(base: {}, top: {}, radius: {r:?})",
+                v(Vec3::new(0.0, 0.0, -r)),
+                v(Vec3::new(0.0, 0.0, r * 1.5))
+            )
+        };
+        let scene = util::scene(&format!(
+            "(camera: (eye: (0, 0, {:?}), look_at: (0, 0, 0), up: (0, 1, 0), fov_y: 40, width: 8, height: 8),
+              materials: {{ \"glass\": (transmit: 1, ior: 1.5) }},
+              objects: [Transform(scale: {}, rotate: {}, translate: {}, child: {shape}, material: \"glass\")])",
+            100.0 * r,
+            v(scale),
+            v(rotate),
+            v(translate)
+        ));
+        let prim = &scene.primitives[0];
+        let mut roth = RothTracer::new(&scene);
+        let centre = (prim.bounds.min + prim.bounds.max) * 0.5;
+        let size = (prim.bounds.max - prim.bounds.min).max_element();
+        for _ in 0..4 {
+            // A ray from outside at the solid's middle, slightly off centre.
+            let from = centre + rng.direction() * (10.0 * size);
+            let to = centre + rng.direction() * (0.2 * size);
+            let ray = Ray::new(from, to - from);
+            let Some(hit) = roth.nearest(&ray, 0.0, f64::INFINITY) else {
+                continue;
+            };
+            let p = ray.at(hit.t);
+            let n = prim.normal(&ray, hit.t, hit.part);
+            assert!(hit.t.is_finite() && n.is_finite(), "{hit:?} {n}");
+            let out = offset_origin(&ray, hit.t, p, n, size);
+            let inside = offset_origin(&ray, hit.t, p, -n, size);
+            for _ in 0..1000 {
+                let d = rng.direction();
+                let (o, d) = if d.dot(n) > 0.0 { (out, d) } else { (out, -d) };
+                spawned += 1;
+                if let Some(h) = roth.nearest(&Ray::new(o, d), 0.0, f64::INFINITY) {
+                    assert!(h.t.is_finite());
+                    self_hits += 1;
+                }
+                let d = -d;
+                spawned += 1;
+                match roth.nearest(&Ray::new(inside, d), 0.0, f64::INFINITY) {
+                    // Convex: the far side, at a distance of the solid's
+                    // order unless the ray skims along the surface.
+                    Some(h) if (h.t * d.length()) > 1e-9 * size || d.dot(n) > -1e-6 => {}
+                    other => {
+                        self_hits += 1;
+                        eprintln!("self-hit {other:?} from {inside} along {d}");
+                    }
+                }
+            }
+            // The refracted ray through a sphere: chord 2r·cos θt.
+            if case % 2 == 0 && uniform && !far {
+                let dn = ray.dir.normalize();
+                let Refraction::Transmitted(t) = refract(dn, n, 1.0 / 1.5) else {
+                    panic!("entering glass never reflects totally");
+                };
+                let exit = roth
+                    .nearest(&Ray::new(inside, t), 0.0, f64::INFINITY)
+                    .expect("the refracted ray leaves the sphere");
+                let radius = r * scale.x;
+                let cos_t = -t.dot(n);
+                assert_rel(exit.t, 2.0 * radius * cos_t, 1e-9);
+                assert_eq!(exit.prim, PrimId(0));
+            }
+        }
+        // The surface is no sheet: the scene's only primitive is solid.
+        assert!(matches!(
+            prim.intersect(&Ray::new(centre, Vec3::Z)),
+            PrimHits::Solid { .. }
+        ));
+        assert!(matches!(
+            prim.shape,
+            Shape::Sphere { .. } | Shape::Cylinder { .. }
+        ));
+    }
+    assert!(spawned > 100_000, "{spawned} rays spawned");
+    assert_eq!(
+        self_hits, 0,
+        "{self_hits} of {spawned} spawned rays hit their own surface"
+    );
+}
+
+// ---------------------------------------------------------------------------
+// ROBUSTNESS.md 29: a closed mesh crossed through its edges and vertices.
+
+/// The cube `[−1, 1]³` as 12 triangles, each face split along a diagonal,
+/// or as 6 square polygons (which the loader triangulates).
+fn mesh_cube(polygons: bool) -> String {
+    let mut s = String::new();
+    for axis in 0..3 {
+        for side in [-1.0, 1.0] {
+            let (u, w) = ((axis + 1) % 3, (axis + 2) % 3);
+            let corner = |a: f64, b: f64| {
+                let mut p = Vec3::ZERO;
+                p[axis] = side;
+                p[u] = a;
+                p[w] = b;
+                p
+            };
+            let q = [
+                corner(-1.0, -1.0),
+                corner(1.0, -1.0),
+                corner(1.0, 1.0),
+                corner(-1.0, 1.0),
+            ];
+            if polygons {
+                let vs: Vec<String> = q.iter().map(|p| v(*p)).collect();
+                s += &format!("Polygon(vertices: [{}]),", vs.join(", "));
+                continue;
+            }
+            for [i, j, k] in [[0, 1, 2], [0, 2, 3]] {
+                s += &format!("Triangle(a: {}, b: {}, c: {}),", v(q[i]), v(q[j]), v(q[k]));
+            }
+        }
+    }
+    s
+}
+
+/// Rays through the mesh's edges, its vertices and the faces' inner
+/// diagonals cross it exactly twice (once in, once out), and its picture
+/// covers exactly the pixels the solid box covers; for triangles and for
+/// polygons.
+#[test]
+fn case_29_closed_meshes_are_crossed_once_per_side() {
+    for polygons in [false, true] {
+        closed_mesh_is_crossed_once_per_side(polygons);
+    }
+}
+
+fn closed_mesh_is_crossed_once_per_side(polygons: bool) {
+    let cam = camera(Vec3::new(4.0, -3.0, 5.0), Vec3::ZERO, Vec3::Z, 50.0, 33, 33);
+    let mesh = util::scene(&format!(
+        "(camera: {cam}, background: (0, 0, 1), materials: {{ \"flat\": (color: (1, 0, 0), ambient: 1, diffuse: 0) }},
+          objects: [Union(material: \"flat\", children: [{}])])",
+        mesh_cube(polygons)
+    ));
+    let mut rays = vec![
+        (Vec3::splat(5.0), -Vec3::ONE),
+        (Vec3::new(5.0, -5.0, 5.0), Vec3::new(-1.0, 1.0, -1.0)),
+        (Vec3::new(5.0, 0.3, 5.0), Vec3::new(-1.0, 0.0, -1.0)),
+        (Vec3::new(0.3, -5.0, 5.0), Vec3::new(0.0, 1.0, -1.0)),
+    ];
+    // On and off the faces' inner diagonals (not in a face's plane: a ray
+    // along a face crosses nothing).
+    for (a, b) in [
+        (0.0, 0.0),
+        (0.5, 0.5),
+        (-0.5, -0.5),
+        (0.5, -0.5),
+        (-0.25, 0.25),
+    ] {
+        for axis in 0..3 {
+            let mut o = Vec3::splat(a);
+            o[(axis + 1) % 3] = b;
+            o[axis] = 5.0;
+            let mut d = Vec3::ZERO;
+            d[axis] = -1.0;
+            rays.push((o, d));
+        }
+    }
+    for (o, d) in rays {
+        let got = pts(&along(&mesh, &Ray::new(o, d)));
+        assert_eq!(got.len(), 2, "polygons {polygons}, {o} {d}: {got:?}");
+        assert!((got[1].1 - got[0].1) > 0.0, "{o} {d}: {got:?}");
+    }
+    let film = assert_renders_equal(&mesh, 33, 33).0;
+    let solid = util::scene(&format!(
+        "(camera: {cam}, background: (0, 0, 1), materials: {{ \"flat\": (color: (1, 0, 0), ambient: 1, diffuse: 0) }},
+          objects: [Box(min: (-1, -1, -1), max: (1, 1, 1), material: \"flat\")])"
+    ));
+    let (box_film, _) = util::roth(&solid, 33, 33);
+    assert_same_picture(
+        &film,
+        &box_film,
+        &format!("mesh cube (polygons {polygons}) against the box"),
+    );
+}
