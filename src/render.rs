@@ -270,7 +270,15 @@ pub fn render_roth(
     opts: &RenderOptions,
     progress: &(dyn Fn(u32) + Sync),
 ) -> (Film, RenderStats) {
-    render_with(scene, opts, || RothTracer::new(scene), |_| false, progress)
+    let r = render_host(
+        scene,
+        opts,
+        None,
+        Accel::Roth,
+        CellOptions::default(),
+        progress,
+    );
+    (r.film, r.stats)
 }
 
 /// Renders with the paper's cells: builds the subdivision for the camera,
@@ -281,16 +289,9 @@ pub fn render_cells(
     cell_opts: CellOptions,
     progress: &(dyn Fn(u32) + Sync),
 ) -> (Film, RenderStats, CellStructure) {
-    let cs = CellStructure::build(scene, opts.width, opts.height, cell_opts);
-    let (film, mut stats) = render_with(
-        scene,
-        opts,
-        || CellTracer::new(&cs, scene),
-        |job| CellTracer::primary_is_background(&cs, &job.ray),
-        progress,
-    );
-    stats.wall_seconds += cs.stats.build_seconds;
-    (film, stats, cs)
+    let r = render_host(scene, opts, None, Accel::Cells, cell_opts, progress);
+    let cs = r.cells.expect("a cells render keeps its structure");
+    (r.film, r.stats, cs)
 }
 
 /// A render on this host, whatever the accelerator and sampling.

@@ -1,4 +1,4 @@
-//! Adaptive supersampling in Whitted's manner (1980, section 4), as passes
+//! Adaptive supersampling in Whitted's manner (CACM 1980), as passes
 //! over an abstract pass renderer. Pass 1 samples every pixel with the base
 //! samples per pixel; the pixels whose value differs from a neighbour's by
 //! more than a threshold are refined by pass 2, which renders only them,
