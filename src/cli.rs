@@ -11,10 +11,12 @@ use serde_json::json;
 
 use crate::cells::{CellOptions, CellStructure, SegmentChoice};
 use crate::error::{Error, Result};
-use crate::render::{self, Accel, RenderOptions, RenderStats};
+use crate::render::{self, AaSummary, Accel, Adaptive, RenderOptions, RenderStats};
 use crate::report::{self, ImageMetrics, stats::num};
 use crate::scene::{self, Scene};
 use crate::trace::RayKind;
+
+mod quality;
 
 #[derive(Parser, Debug)]
 #[command(
@@ -33,6 +35,8 @@ pub enum Command {
     Render(RenderArgs),
     /// Show the paper's subdivision of a scene: counts, memory, and an overlay picture.
     Inspect(InspectArgs),
+    /// Error against run time: sweep samples per pixel, adaptive threshold and depth.
+    Quality(quality::QualityArgs),
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -103,6 +107,18 @@ pub struct RenderArgs {
     /// Samples per pixel, stratified and deterministic.
     #[arg(long, default_value_t = 1)]
     pub spp: u32,
+    /// Adaptive antialiasing: more samples where a pixel differs from a
+    /// neighbour by more than T (0 < T <= 1, linear radiance).
+    #[arg(long, value_name = "T")]
+    pub aa_threshold: Option<f64>,
+    /// Samples added to each pixel that --aa-threshold refines.
+    #[arg(
+        long,
+        value_name = "N",
+        requires = "aa_threshold",
+        default_value_t = 16
+    )]
+    pub aa_spp: u32,
     /// Reflection/refraction recursion limit (default: the scene's max_depth).
     #[arg(long)]
     pub max_depth: Option<u32>,
@@ -131,6 +147,7 @@ pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Render(a) => run_render(a),
         Command::Inspect(a) => run_inspect(a),
+        Command::Quality(a) => quality::run(a),
     }
 }
 
@@ -140,6 +157,7 @@ struct RenderJob {
     scene: Scene,
     output: PathBuf,
     opts: RenderOptions,
+    adaptive: Option<Adaptive>,
     accel: Accel,
     reference: Option<(PathBuf, report::DisplayImage)>,
     stats: Option<PathBuf>,
@@ -186,6 +204,10 @@ fn prepare_render(a: RenderArgs) -> Result<RenderJob> {
             a.spp
         )));
     }
+    let adaptive = match a.aa_threshold {
+        None => None,
+        Some(t) => Some(adaptive_option(t, a.aa_spp)?),
+    };
     let (mut scene, width, height) = load_for_run(&a.scene, a.width, a.height, a.quiet)?;
     if let Some(d) = a.max_depth {
         if d > scene::MAX_DEPTH_LIMIT {
@@ -222,6 +244,7 @@ fn prepare_render(a: RenderArgs) -> Result<RenderJob> {
             spp: a.spp,
             threads,
         },
+        adaptive,
         accel: match a.accel {
             AccelArg::Cells => Accel::Cells,
             AccelArg::Roth => Accel::Roth,
@@ -230,6 +253,24 @@ fn prepare_render(a: RenderArgs) -> Result<RenderJob> {
         stats: a.stats,
         bsp: a.bsp.into(),
         quiet: a.quiet,
+    })
+}
+
+/// `--aa-threshold` and `--aa-spp`, checked.
+fn adaptive_option(threshold: f64, extra_spp: u32) -> Result<Adaptive> {
+    if !(threshold > 0.0 && threshold <= 1.0) {
+        return Err(Error::Usage(format!(
+            "--aa-threshold must be in (0, 1], got {threshold}"
+        )));
+    }
+    if extra_spp == 0 || extra_spp > 65536 {
+        return Err(Error::Usage(format!(
+            "--aa-spp must be in 1..=65536, got {extra_spp}"
+        )));
+    }
+    Ok(Adaptive {
+        threshold,
+        extra_spp,
     })
 }
 
@@ -283,48 +324,78 @@ pub fn progress_bar(total: u64, quiet: bool, what: &str) -> ProgressBar {
     pb
 }
 
+/// What a render gave, whoever rendered it.
+struct RenderOutcome {
+    film: crate::trace::Film,
+    stats: RenderStats,
+    cells: Option<CellStructure>,
+    aa: AaSummary,
+    /// The modelled machine's predicted makespan; `None` for renders on
+    /// this host's threads, the only renderer until the machine exists.
+    virtual_seconds: Option<f64>,
+}
+
+/// Renders a job: the one place that picks the renderer for `render`.
+fn render_job(job: &RenderJob, progress: &(dyn Fn(u32) + Sync)) -> RenderOutcome {
+    let r = render::render_host(
+        &job.scene,
+        &job.opts,
+        job.adaptive,
+        job.accel,
+        CellOptions { choice: job.bsp },
+        progress,
+    );
+    RenderOutcome {
+        film: r.film,
+        stats: r.stats,
+        cells: r.cells,
+        aa: r.aa,
+        virtual_seconds: None,
+    }
+}
+
+/// "1.234 s wall" and, when the machine predicted it, "0.567 s virtual".
+fn times(wall: f64, virtual_seconds: Option<f64>) -> String {
+    match virtual_seconds {
+        None => format!("{wall:.3} s wall"),
+        Some(v) => format!("{wall:.3} s wall, {v:.3} s virtual"),
+    }
+}
+
 fn run_render(a: RenderArgs) -> Result<()> {
     let job = prepare_render(a)?;
-    let pb = progress_bar(job.opts.height as u64, job.quiet, "render");
+    let passes = if job.adaptive.is_some() { 2 } else { 1 };
+    let pb = progress_bar(passes * job.opts.height as u64, job.quiet, "render");
     let progress = |rows: u32| pb.inc(rows as u64);
-    let (film, stats, cs) = match job.accel {
-        Accel::Roth => {
-            let (film, stats) = render::render_roth(&job.scene, &job.opts, &progress);
-            (film, stats, None)
-        }
-        Accel::Cells => {
-            let (film, stats, cs) = render::render_cells(
-                &job.scene,
-                &job.opts,
-                CellOptions { choice: job.bsp },
-                &progress,
-            );
-            (film, stats, Some(cs))
-        }
-    };
+    let out = render_job(&job, &progress);
     pb.finish_and_clear();
-    let linear = film.to_linear();
+    let linear = out.film.to_linear();
     report::write_image(&job.output, job.opts.width, job.opts.height, &linear)?;
     let metrics = job
         .reference
         .as_ref()
         .map(|(_, r)| report::compare(&r.comparable(&linear), &r.pixels));
     if let Some(p) = &job.stats {
-        let mut v = stats_json(&job, &stats, metrics.as_ref());
-        if let Some(cs) = &cs {
+        let mut v = stats_json(&job, &out, metrics.as_ref());
+        if let Some(cs) = &out.cells {
             report::stats::extend(&mut v, structure_json(cs));
         }
         report::stats::write_json(p, &v)?;
     }
+    let stats = &out.stats;
     if !job.quiet {
+        let aa = match job.adaptive {
+            None => String::new(),
+            Some(_) => format!(" + {} refined pixels", out.aa.refined_pixels),
+        };
         eprintln!(
-            "hypercast: wrote {} ({}x{}, {} spp, {}) in {:.3} s wall; {} rays, {} intersection tests",
+            "hypercast: wrote {} ({}x{}, {} spp{aa}, {}) in {}; {} rays, {} intersection tests",
             job.output.display(),
             job.opts.width,
             job.opts.height,
             job.opts.spp,
             job.accel.name(),
-            stats.wall_seconds,
+            times(stats.wall_seconds, out.virtual_seconds),
             stats.rays.total(),
             stats.counters.intersection_tests
         );
@@ -332,14 +403,18 @@ fn run_render(a: RenderArgs) -> Result<()> {
     if let Some(m) = metrics {
         // Error beside run time, always printed when asked for.
         println!(
-            "rmse {:.6}  psnr {:.2} dB  max {:.6}  wall {:.3} s",
-            m.rmse, m.psnr, m.max_error, stats.wall_seconds
+            "rmse {:.6}  psnr {:.2} dB  max {:.6}  {}",
+            m.rmse,
+            m.psnr,
+            m.max_error,
+            times(stats.wall_seconds, out.virtual_seconds)
         );
     }
     Ok(())
 }
 
-fn stats_json(job: &RenderJob, s: &RenderStats, m: Option<&ImageMetrics>) -> serde_json::Value {
+fn stats_json(job: &RenderJob, out: &RenderOutcome, m: Option<&ImageMetrics>) -> serde_json::Value {
+    let s = &out.stats;
     let rays: serde_json::Map<String, serde_json::Value> = RayKind::ALL
         .iter()
         .map(|k| (k.name().to_string(), json!(s.rays.get(*k))))
@@ -353,8 +428,12 @@ fn stats_json(job: &RenderJob, s: &RenderStats, m: Option<&ImageMetrics>) -> ser
         "dimension": 0,
         "nodes": 1,
         "threads": job.opts.threads,
+        "aa_threshold": job.adaptive.map(|a| a.threshold),
+        "aa_spp": job.adaptive.map(|a| a.extra_spp),
+        "aa_refined_pixels": out.aa.refined_pixels,
+        "samples": out.aa.samples,
         "wall_seconds": s.wall_seconds,
-        "virtual_seconds": null,
+        "virtual_seconds": out.virtual_seconds,
         "rays": rays,
         "intersection_tests": s.counters.intersection_tests,
         "mailbox_hits": s.counters.mailbox_hits,

@@ -11,6 +11,8 @@ mod cli;
 mod csg_props;
 #[path = "it/known_answer.rs"]
 mod known_answer;
+#[path = "it/quality.rs"]
+mod quality;
 #[path = "it/shading.rs"]
 mod shading;
 

@@ -5,6 +5,7 @@
 
 pub mod image_io;
 pub mod overlay;
+pub mod quality;
 pub mod stats;
 
 pub use image_io::{DisplayImage, ImageMetrics, compare, read_display_image, write_image};
