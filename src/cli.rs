@@ -220,18 +220,7 @@ fn prepare_render(a: RenderArgs) -> Result<RenderJob> {
     }
     let reference = match &a.reference {
         None => None,
-        Some(p) => {
-            let img = report::read_display_image(p)?;
-            if (img.width, img.height) != (width, height) {
-                return Err(Error::Usage(format!(
-                    "{}: reference is {}x{}, the render is {width}x{height}",
-                    p.display(),
-                    img.width,
-                    img.height
-                )));
-            }
-            Some((p.clone(), img))
-        }
+        Some(p) => Some((p.clone(), read_reference(p, width, height)?)),
     };
     let threads = host_threads(a.threads)?;
     Ok(RenderJob {
@@ -254,6 +243,20 @@ fn prepare_render(a: RenderArgs) -> Result<RenderJob> {
         bsp: a.bsp.into(),
         quiet: a.quiet,
     })
+}
+
+/// A `--reference` image, refused unless it is `width` x `height`.
+fn read_reference(path: &Path, width: u32, height: u32) -> Result<report::DisplayImage> {
+    let img = report::read_display_image(path)?;
+    if (img.width, img.height) != (width, height) {
+        return Err(Error::Usage(format!(
+            "{}: reference is {}x{}, the render is {width}x{height}",
+            path.display(),
+            img.width,
+            img.height
+        )));
+    }
+    Ok(img)
 }
 
 /// `--aa-threshold` and `--aa-spp`, checked.

@@ -9,7 +9,7 @@ use crate::error::{Error, Result};
 use crate::quality::{self, SweepOptions};
 use crate::report::{self, quality as rq};
 
-use super::{host_threads, load_for_run, progress_bar};
+use super::{host_threads, load_for_run, progress_bar, read_reference};
 
 #[derive(clap::Args, Debug)]
 pub struct QualityArgs {
@@ -71,18 +71,7 @@ pub fn run(a: QualityArgs) -> Result<()> {
     let (scene, width, height) = load_for_run(&a.scene, a.width, a.height, a.quiet)?;
     let given = match &a.reference {
         None => None,
-        Some(p) => {
-            let img = report::read_display_image(p)?;
-            if (img.width, img.height) != (width, height) {
-                return Err(Error::Usage(format!(
-                    "{}: reference is {}x{}, the sweep renders {width}x{height}",
-                    p.display(),
-                    img.width,
-                    img.height
-                )));
-            }
-            Some(img)
-        }
+        Some(p) => Some(read_reference(p, width, height)?),
     };
     // Everything the user gave is valid: only now touch the file system.
     out_dir(&a.out)?;
