@@ -12,10 +12,12 @@ use serde_json::json;
 use crate::cells::{CellOptions, CellStructure, SegmentChoice};
 use crate::error::{Error, Result};
 use crate::machine::{self, MachineOptions, MachineStats, Mapping, Topology};
-use crate::render::{self, Accel, RenderOptions, RenderStats};
+use crate::render::{self, AaSummary, Accel, Adaptive, RenderOptions, RenderStats};
 use crate::report::{self, ImageMetrics, stats::num};
 use crate::scene::{self, Scene};
 use crate::trace::RayKind;
+
+mod quality;
 
 #[derive(Parser, Debug)]
 #[command(
@@ -36,6 +38,8 @@ pub enum Command {
     Inspect(InspectArgs),
     /// Render once per hypercube dimension: speedup, efficiency, messages, imbalance.
     Scale(ScaleArgs),
+    /// Error against run time: sweep samples per pixel, adaptive threshold and depth.
+    Quality(quality::QualityArgs),
 }
 
 /// The modelled machine's options, shared by `render`, `inspect` and `scale`.
@@ -202,6 +206,18 @@ pub struct RenderArgs {
     /// Samples per pixel, stratified and deterministic.
     #[arg(long, default_value_t = 1)]
     pub spp: u32,
+    /// Adaptive antialiasing: more samples where a pixel differs from a
+    /// neighbour by more than T (0 < T <= 1, linear radiance).
+    #[arg(long, value_name = "T")]
+    pub aa_threshold: Option<f64>,
+    /// Samples added to each pixel that --aa-threshold refines.
+    #[arg(
+        long,
+        value_name = "N",
+        requires = "aa_threshold",
+        default_value_t = 16
+    )]
+    pub aa_spp: u32,
     /// Reflection/refraction recursion limit (default: the scene's max_depth).
     #[arg(long)]
     pub max_depth: Option<u32>,
@@ -233,6 +249,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Render(a) => run_render(a),
         Command::Inspect(a) => run_inspect(a),
         Command::Scale(a) => run_scale(a),
+        Command::Quality(a) => quality::run(a),
     }
 }
 
@@ -242,6 +259,7 @@ struct RenderJob {
     scene: Scene,
     output: PathBuf,
     opts: RenderOptions,
+    adaptive: Option<Adaptive>,
     accel: Accel,
     reference: Option<(PathBuf, report::DisplayImage)>,
     stats: Option<PathBuf>,
@@ -289,6 +307,10 @@ fn prepare_render(a: RenderArgs) -> Result<RenderJob> {
             a.spp
         )));
     }
+    let adaptive = match a.aa_threshold {
+        None => None,
+        Some(t) => Some(adaptive_option(t, a.aa_spp)?),
+    };
     let (mut scene, width, height) = load_for_run(&a.scene, a.width, a.height, a.quiet)?;
     if let Some(d) = a.max_depth {
         if d > scene::MAX_DEPTH_LIMIT {
@@ -301,18 +323,7 @@ fn prepare_render(a: RenderArgs) -> Result<RenderJob> {
     }
     let reference = match &a.reference {
         None => None,
-        Some(p) => {
-            let img = report::read_display_image(p)?;
-            if (img.width, img.height) != (width, height) {
-                return Err(Error::Usage(format!(
-                    "{}: reference is {}x{}, the render is {width}x{height}",
-                    p.display(),
-                    img.width,
-                    img.height
-                )));
-            }
-            Some((p.clone(), img))
-        }
+        Some(p) => Some((p.clone(), read_reference(p, width, height)?)),
     };
     let threads = host_threads(a.threads)?;
     let machine = match a.accel {
@@ -333,6 +344,7 @@ fn prepare_render(a: RenderArgs) -> Result<RenderJob> {
             spp: a.spp,
             threads,
         },
+        adaptive,
         accel: match a.accel {
             AccelArg::Cells => Accel::Cells,
             AccelArg::Roth => Accel::Roth,
@@ -340,6 +352,38 @@ fn prepare_render(a: RenderArgs) -> Result<RenderJob> {
         reference,
         stats: a.stats,
         quiet: a.quiet,
+    })
+}
+
+/// A `--reference` image, refused unless it is `width` x `height`.
+fn read_reference(path: &Path, width: u32, height: u32) -> Result<report::DisplayImage> {
+    let img = report::read_display_image(path)?;
+    if (img.width, img.height) != (width, height) {
+        return Err(Error::Usage(format!(
+            "{}: reference is {}x{}, the render is {width}x{height}",
+            path.display(),
+            img.width,
+            img.height
+        )));
+    }
+    Ok(img)
+}
+
+/// `--aa-threshold` and `--aa-spp`, checked.
+fn adaptive_option(threshold: f64, extra_spp: u32) -> Result<Adaptive> {
+    if !(threshold > 0.0 && threshold <= 1.0) {
+        return Err(Error::Usage(format!(
+            "--aa-threshold must be in (0, 1], got {threshold}"
+        )));
+    }
+    if extra_spp == 0 || extra_spp > 65536 {
+        return Err(Error::Usage(format!(
+            "--aa-spp must be in 1..=65536, got {extra_spp}"
+        )));
+    }
+    Ok(Adaptive {
+        threshold,
+        extra_spp,
     })
 }
 
@@ -393,60 +437,114 @@ pub fn progress_bar(total: u64, quiet: bool, what: &str) -> ProgressBar {
     pb
 }
 
+/// What a render gave, whoever rendered it.
+struct RenderOutcome {
+    film: crate::trace::Film,
+    stats: RenderStats,
+    cells: Option<CellStructure>,
+    aa: AaSummary,
+    /// The modelled machine's predicted makespan; `None` for renders on
+    /// this host's threads (`--accel roth`).
+    virtual_seconds: Option<f64>,
+    machine: Option<MachineStats>,
+}
+
+/// Renders a job: the one place that picks the renderer for `render`.
+fn render_job(job: &RenderJob, progress: &(dyn Fn(u32) + Sync)) -> RenderOutcome {
+    let r = render::render_host(
+        &job.scene,
+        &job.opts,
+        job.adaptive,
+        job.accel,
+        CellOptions::default(),
+        progress,
+    );
+    RenderOutcome {
+        film: r.film,
+        stats: r.stats,
+        cells: r.cells,
+        aa: r.aa,
+        virtual_seconds: None,
+        machine: None,
+    }
+}
+
+/// "1.234 s wall" and, when the machine predicted it, "0.567 s virtual".
+fn times(wall: f64, virtual_seconds: Option<f64>) -> String {
+    match virtual_seconds {
+        None => format!("{wall:.3} s wall"),
+        Some(v) => format!("{wall:.3} s wall, {v:.3} s virtual"),
+    }
+}
+
 fn run_render(a: RenderArgs) -> Result<()> {
     let job = prepare_render(a)?;
-    let (film, stats, machine_stats, cs) = match &job.machine {
+    let passes = if job.adaptive.is_some() { 2 } else { 1 };
+    let out = match &job.machine {
         None => {
-            let pb = progress_bar(job.opts.height as u64, job.quiet, "render");
+            let pb = progress_bar(passes * job.opts.height as u64, job.quiet, "render");
             let progress = |rows: u32| pb.inc(rows as u64);
-            let (film, stats) = render::render_roth(&job.scene, &job.opts, &progress);
+            let out = render_job(&job, &progress);
             pb.finish_and_clear();
-            (film, stats, None, None)
+            out
         }
         Some((topo, mopts)) => {
             let samples = job.opts.width as u64 * job.opts.height as u64 * job.opts.spp as u64;
             let pb = progress_bar(samples, job.quiet, "render");
             let progress = |n: u64| pb.inc(n);
-            let result = machine::render(&job.scene, topo, mopts, &progress);
+            let result = machine::render_adaptive(&job.scene, topo, mopts, job.adaptive, &progress);
             pb.finish_and_clear();
-            let (film, ms, cs) = result?;
-            (film, ms.as_render_stats(), Some(ms), Some(cs))
+            let (film, ms, cs, aa) = result?;
+            RenderOutcome {
+                film,
+                stats: ms.as_render_stats(),
+                cells: Some(cs),
+                aa,
+                virtual_seconds: Some(ms.virtual_seconds),
+                machine: Some(ms),
+            }
         }
     };
-    let linear = film.to_linear();
+    let machine_stats = &out.machine;
+    let linear = out.film.to_linear();
     report::write_image(&job.output, job.opts.width, job.opts.height, &linear)?;
     let metrics = job
         .reference
         .as_ref()
         .map(|(_, r)| report::compare(&r.comparable(&linear), &r.pixels));
     if let Some(p) = &job.stats {
-        let mut v = stats_json(&job, &stats, metrics.as_ref());
-        if let Some(cs) = &cs {
+        let mut v = stats_json(&job, &out, metrics.as_ref());
+        if let Some(cs) = &out.cells {
             report::stats::extend(&mut v, structure_json(cs));
         }
-        if let (Some(ms), Some((topo, _))) = (&machine_stats, &job.machine) {
+        if let (Some(ms), Some((topo, _))) = (machine_stats, &job.machine) {
             report::stats::extend(&mut v, machine_json(topo, ms));
         }
         report::stats::write_json(p, &v)?;
     }
+    let stats = &out.stats;
     if !job.quiet {
-        let how = match (&machine_stats, &job.machine) {
+        let how = match (machine_stats, &job.machine) {
             (Some(ms), Some((topo, _))) => {
                 format!("cells on {} with {} nodes", topo.name, ms.per_node.len())
             }
             _ => format!("{}, {} threads", job.accel.name(), job.opts.threads),
         };
+        let aa = match job.adaptive {
+            None => String::new(),
+            Some(_) => format!(" + {} refined pixels", out.aa.refined_pixels),
+        };
         eprintln!(
-            "hypercast: wrote {} ({}x{}, {} spp, {how}) in {:.3} s wall; {} rays, {} intersection tests",
+            "hypercast: wrote {} ({}x{}, {} spp{aa}, {how}) in {}; {} rays, {} intersection tests",
             job.output.display(),
             job.opts.width,
             job.opts.height,
             job.opts.spp,
-            stats.wall_seconds,
+            times(stats.wall_seconds, out.virtual_seconds),
             stats.rays.total(),
             stats.counters.intersection_tests
         );
-        if let Some(ms) = &machine_stats {
+        if let Some(ms) = machine_stats {
             eprintln!(
                 "hypercast: modelled machine: {:.3} s virtual; {} messages, {} bytes, {} hops; busy imbalance {:.2} (max/mean)",
                 ms.virtual_seconds, ms.messages, ms.message_bytes, ms.hops, ms.imbalance
@@ -455,18 +553,19 @@ fn run_render(a: RenderArgs) -> Result<()> {
     }
     if let Some(m) = metrics {
         // Error beside run time, always printed when asked for.
-        let virt = machine_stats.as_ref().map_or(String::new(), |ms| {
-            format!("  virtual {:.3} s", ms.virtual_seconds)
-        });
         println!(
-            "rmse {:.6}  psnr {:.2} dB  max {:.6}  wall {:.3} s{virt}",
-            m.rmse, m.psnr, m.max_error, stats.wall_seconds
+            "rmse {:.6}  psnr {:.2} dB  max {:.6}  {}",
+            m.rmse,
+            m.psnr,
+            m.max_error,
+            times(stats.wall_seconds, out.virtual_seconds)
         );
     }
     Ok(())
 }
 
-fn stats_json(job: &RenderJob, s: &RenderStats, m: Option<&ImageMetrics>) -> serde_json::Value {
+fn stats_json(job: &RenderJob, out: &RenderOutcome, m: Option<&ImageMetrics>) -> serde_json::Value {
+    let s = &out.stats;
     let rays: serde_json::Map<String, serde_json::Value> = RayKind::ALL
         .iter()
         .map(|k| (k.name().to_string(), json!(s.rays.get(*k))))
@@ -480,8 +579,12 @@ fn stats_json(job: &RenderJob, s: &RenderStats, m: Option<&ImageMetrics>) -> ser
         "dimension": 0,
         "nodes": 1,
         "threads": job.opts.threads,
+        "aa_threshold": job.adaptive.map(|a| a.threshold),
+        "aa_spp": job.adaptive.map(|a| a.extra_spp),
+        "aa_refined_pixels": out.aa.refined_pixels,
+        "samples": out.aa.samples,
         "wall_seconds": s.wall_seconds,
-        "virtual_seconds": null,
+        "virtual_seconds": out.virtual_seconds,
         "rays": rays,
         "intersection_tests": s.counters.intersection_tests,
         "mailbox_hits": s.counters.mailbox_hits,

@@ -12,6 +12,7 @@ pub mod cells;
 pub mod cli;
 pub mod r#gen;
 pub mod machine;
+pub mod quality;
 pub mod reference;
 pub mod render;
 pub mod report;

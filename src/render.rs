@@ -12,6 +12,10 @@ use crate::reference::RothTracer;
 use crate::scene::Scene;
 use crate::trace::{CameraFrame, Film, RayCounts, RayJob, Shader, Tracer};
 
+pub mod aa;
+
+pub use aa::{AaSummary, Adaptive, Pass, PixelSet, Sampling};
+
 /// Which accelerator finds hits.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Accel {
@@ -52,6 +56,15 @@ pub struct TraceCounters {
     pub subtree_evaluations: u64,
 }
 
+impl TraceCounters {
+    pub fn merge(&mut self, o: &TraceCounters) {
+        self.intersection_tests += o.intersection_tests;
+        self.mailbox_hits += o.mailbox_hits;
+        self.cells_visited += o.cells_visited;
+        self.subtree_evaluations += o.subtree_evaluations;
+    }
+}
+
 /// Statistics of a single-node render.
 #[derive(Clone, Debug, Default)]
 pub struct RenderStats {
@@ -62,17 +75,36 @@ pub struct RenderStats {
     pub pixels_background: u64,
 }
 
+impl RenderStats {
+    /// Adds another part's rays, counters and pixels (not its wall time).
+    pub fn merge(&mut self, o: &RenderStats) {
+        self.rays.merge(&o.rays);
+        self.counters.merge(&o.counters);
+        self.pixels_traced += o.pixels_traced;
+        self.pixels_background += o.pixels_background;
+    }
+}
+
 /// Sample `k` of `spp` within pixel `pixel`: stratified on a grid, jittered
 /// by a hash of (pixel, k) only, so every node and thread draws the same
 /// samples. One sample sits at the pixel's centre (`SCENE_FORMAT.md`).
 pub fn sample_offset(pixel: u32, k: u32, spp: u32) -> (f64, f64) {
-    if spp <= 1 {
+    sample_offset_from(pixel, k, spp, 0)
+}
+
+/// Sample `k` of a pass of `spp` samples whose first sample has index
+/// `first`: stratum `k` of the pass's grid, jittered by a hash of (pixel,
+/// first + k), so passes over the same pixel draw different samples. A
+/// lone first sample (`spp` 1, `first` 0) is the pixel's centre.
+pub fn sample_offset_from(pixel: u32, k: u32, spp: u32, first: u32) -> (f64, f64) {
+    if spp <= 1 && first == 0 {
         return (0.5, 0.5);
     }
+    let spp = spp.max(1);
     let nx = (spp as f64).sqrt().ceil() as u32;
     let ny = spp.div_ceil(nx);
     let (cx, cy) = (k % nx, k / nx);
-    let h = hash2(pixel, k);
+    let h = hash2(pixel, first.wrapping_add(k));
     let jx = (h & 0xffff_ffff) as f64 / 4294967296.0;
     let jy = (h >> 32) as f64 / 4294967296.0;
     ((cx as f64 + jx) / nx as f64, (cy as f64 + jy) / ny as f64)
@@ -86,12 +118,19 @@ fn hash2(a: u32, b: u32) -> u64 {
     z ^ (z >> 31)
 }
 
-/// The primary jobs of one pixel.
+/// The primary jobs of one pixel (samples `0..spp`).
 pub fn pixel_jobs(cam: &CameraFrame, i: u32, j: u32, spp: u32, out: &mut Vec<RayJob>) {
-    let pixel = j * cam.width + i;
-    let w = 1.0 / spp.max(1) as f64;
-    for k in 0..spp.max(1) {
-        let (fx, fy) = sample_offset(pixel, k, spp);
+    sample_jobs(cam, j * cam.width + i, spp, 0, out);
+}
+
+/// The primary jobs of samples `first..first + spp` of a pixel, each
+/// weighted `1/spp`.
+fn sample_jobs(cam: &CameraFrame, pixel: u32, spp: u32, first: u32, out: &mut Vec<RayJob>) {
+    let (i, j) = (pixel % cam.width, pixel / cam.width);
+    let spp = spp.max(1);
+    let w = 1.0 / spp as f64;
+    for k in 0..spp {
+        let (fx, fy) = sample_offset_from(pixel, k, spp, first);
         out.push(cam.primary(i, j, fx, fy, w));
     }
 }
@@ -115,16 +154,50 @@ where
     M: Fn() -> T + Sync,
     S: Fn(&RayJob) -> bool + Sync,
 {
+    let all = PixelSet::all(opts.width, opts.height);
+    let pass = Pass {
+        pixels: &all,
+        spp: opts.spp,
+        first_sample: 0,
+    };
+    render_pass_with(
+        scene,
+        &pass,
+        opts.threads,
+        make_tracer,
+        skip_primary,
+        progress,
+    )
+}
+
+/// Renders one pass (`aa::Pass`: some pixels, some samples each) on this
+/// host over `threads` threads, with the same tracer arguments as
+/// `render_with`. The film is full-size and zero outside the pass's
+/// pixels; `progress` is told every band of rows, traced or empty.
+pub fn render_pass_with<T, M, S>(
+    scene: &Scene,
+    pass: &Pass<'_>,
+    threads: usize,
+    make_tracer: M,
+    skip_primary: S,
+    progress: &(dyn Fn(u32) + Sync),
+) -> (Film, RenderStats)
+where
+    T: Tracer,
+    M: Fn() -> T + Sync,
+    S: Fn(&RayJob) -> bool + Sync,
+{
     let start = Instant::now();
-    let cam = CameraFrame::new(scene, opts.width, opts.height);
-    let shader = Shader::with_samples(scene, opts.spp);
+    let (width, height) = (pass.pixels.width, pass.pixels.height);
+    let cam = CameraFrame::new(scene, width, height);
+    let shader = Shader::with_samples(scene, pass.spp);
     let next_band = AtomicU32::new(0);
-    let bands = opts.height.div_ceil(BAND_ROWS);
-    let threads = opts.threads.max(1).min(bands.max(1) as usize);
+    let bands = height.div_ceil(BAND_ROWS);
+    let threads = threads.max(1).min(bands.max(1) as usize);
     // Bands are added to the image as they finish, not kept until the end:
     // a 4096×4096 film is 400 MB, and a second copy in bands doubled the
     // peak (`docs/robustness.md`). Fixed-point sums make the order free.
-    let image = Mutex::new(Film::new(opts.width, opts.height));
+    let image = Mutex::new(Film::new(width, height));
     let results: Vec<(RenderStats, TraceCounters)> = std::thread::scope(|s| {
         let handles: Vec<_> = (0..threads)
             .map(|_| {
@@ -139,36 +212,39 @@ where
                             break;
                         }
                         let y0 = b * BAND_ROWS;
-                        let rows = BAND_ROWS.min(opts.height - y0);
-                        let mut film = Film::band(opts.width, y0, rows);
-                        for j in y0..y0 + rows {
-                            for i in 0..opts.width {
-                                jobs.clear();
-                                pixel_jobs(&cam, i, j, opts.spp, &mut jobs);
-                                let mut traced = false;
-                                for job in jobs.drain(..) {
-                                    if skip_primary(&job) {
-                                        // Exactly what tracing would give: a miss.
-                                        film.add(job.pixel, shader.miss(&job));
-                                    } else {
-                                        traced = true;
-                                        shader.run_path(
-                                            &mut tracer,
-                                            job,
-                                            &mut film,
-                                            &mut stats.rays,
-                                            &mut stack,
-                                        );
-                                    }
-                                }
-                                if traced {
-                                    stats.pixels_traced += 1;
+                        let rows = BAND_ROWS.min(height - y0);
+                        // A band without pixels of the pass (pass 2 of
+                        // adaptive sampling) costs no film.
+                        let mut film = None;
+                        for pixel in pass.pixels.in_rows(y0, rows) {
+                            let film = film.get_or_insert_with(|| Film::band(width, y0, rows));
+                            jobs.clear();
+                            pass.pixel_jobs(&cam, pixel, &mut jobs);
+                            let mut traced = false;
+                            for job in jobs.drain(..) {
+                                if skip_primary(&job) {
+                                    // Exactly what tracing would give: a miss.
+                                    film.add(job.pixel, shader.miss(&job));
                                 } else {
-                                    stats.pixels_background += 1;
+                                    traced = true;
+                                    shader.run_path(
+                                        &mut tracer,
+                                        job,
+                                        film,
+                                        &mut stats.rays,
+                                        &mut stack,
+                                    );
                                 }
                             }
+                            if traced {
+                                stats.pixels_traced += 1;
+                            } else {
+                                stats.pixels_background += 1;
+                            }
                         }
-                        image.lock().expect("a render thread panicked").merge(&film);
+                        if let Some(film) = film {
+                            image.lock().expect("a render thread panicked").merge(&film);
+                        }
                         progress(rows);
                     }
                     let c = tracer.counters();
@@ -184,13 +260,8 @@ where
     let film = image.into_inner().expect("a render thread panicked");
     let mut stats = RenderStats::default();
     for (s, c) in &results {
-        stats.rays.merge(&s.rays);
-        stats.pixels_traced += s.pixels_traced;
-        stats.pixels_background += s.pixels_background;
-        stats.counters.intersection_tests += c.intersection_tests;
-        stats.counters.mailbox_hits += c.mailbox_hits;
-        stats.counters.cells_visited += c.cells_visited;
-        stats.counters.subtree_evaluations += c.subtree_evaluations;
+        stats.merge(s);
+        stats.counters.merge(c);
     }
     stats.wall_seconds = start.elapsed().as_secs_f64();
     (film, stats)
@@ -202,7 +273,15 @@ pub fn render_roth(
     opts: &RenderOptions,
     progress: &(dyn Fn(u32) + Sync),
 ) -> (Film, RenderStats) {
-    render_with(scene, opts, || RothTracer::new(scene), |_| false, progress)
+    let r = render_host(
+        scene,
+        opts,
+        None,
+        Accel::Roth,
+        CellOptions::default(),
+        progress,
+    );
+    (r.film, r.stats)
 }
 
 /// Renders with the paper's cells: builds the subdivision for the camera,
@@ -213,14 +292,89 @@ pub fn render_cells(
     cell_opts: CellOptions,
     progress: &(dyn Fn(u32) + Sync),
 ) -> (Film, RenderStats, CellStructure) {
-    let cs = CellStructure::build(scene, opts.width, opts.height, cell_opts);
-    let (film, mut stats) = render_with(
-        scene,
-        opts,
-        || CellTracer::new(&cs, scene),
-        |job| CellTracer::primary_is_background(&cs, &job.ray),
-        progress,
-    );
-    stats.wall_seconds += cs.stats.build_seconds;
-    (film, stats, cs)
+    let r = render_host(scene, opts, None, Accel::Cells, cell_opts, progress);
+    let cs = r.cells.expect("a cells render keeps its structure");
+    (r.film, r.stats, cs)
+}
+
+/// A render on this host, whatever the accelerator and sampling.
+pub struct HostRender {
+    pub film: Film,
+    /// Rays and counters of every pass; pixels traced or background as
+    /// pass 1 found them (every pixel once); wall time of the whole render,
+    /// the subdivision's build included.
+    pub stats: RenderStats,
+    /// The subdivision, for `--accel cells`.
+    pub cells: Option<CellStructure>,
+    pub aa: AaSummary,
+}
+
+/// Renders with either accelerator and adaptive sampling on this host:
+/// `opts.spp` samples per pixel in pass 1, then `adaptive`'s refinement.
+/// The one entry point of CLI renders and quality points; the subdivision
+/// is built once for both passes. `progress` is told rows of every pass.
+pub fn render_host(
+    scene: &Scene,
+    opts: &RenderOptions,
+    adaptive: Option<Adaptive>,
+    accel: Accel,
+    cell_opts: CellOptions,
+    progress: &(dyn Fn(u32) + Sync),
+) -> HostRender {
+    let start = Instant::now();
+    let cells = match accel {
+        Accel::Roth => None,
+        Accel::Cells => Some(CellStructure::build(
+            scene,
+            opts.width,
+            opts.height,
+            cell_opts,
+        )),
+    };
+    let sampling = Sampling {
+        spp: opts.spp,
+        adaptive,
+    };
+    let mut stats = RenderStats::default();
+    let mut passes = 0;
+    let rendered = aa::render_adaptive(opts.width, opts.height, &sampling, |pass| {
+        let (film, s) = match &cells {
+            None => render_pass_with(
+                scene,
+                pass,
+                opts.threads,
+                || RothTracer::new(scene),
+                |_| false,
+                progress,
+            ),
+            Some(cs) => render_pass_with(
+                scene,
+                pass,
+                opts.threads,
+                || CellTracer::new(cs, scene),
+                |job| CellTracer::primary_is_background(cs, &job.ray),
+                progress,
+            ),
+        };
+        if passes == 0 {
+            stats.merge(&s);
+        } else {
+            // Refined pixels were counted as traced or background once.
+            stats.rays.merge(&s.rays);
+            stats.counters.merge(&s.counters);
+        }
+        passes += 1;
+        Ok::<Film, std::convert::Infallible>(film)
+    });
+    let (film, aa) = match rendered {
+        Ok(r) => r,
+        Err(never) => match never {},
+    };
+    stats.wall_seconds = start.elapsed().as_secs_f64();
+    HostRender {
+        film,
+        stats,
+        cells,
+        aa,
+    }
 }

@@ -13,6 +13,8 @@ mod csg_props;
 mod known_answer;
 #[path = "it/machine.rs"]
 mod machine;
+#[path = "it/quality.rs"]
+mod quality;
 #[path = "it/robustness.rs"]
 mod robustness;
 #[path = "it/shading.rs"]

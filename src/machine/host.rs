@@ -16,7 +16,7 @@ use super::topology::{MAX_DIMENSION, Topology};
 use super::transport::{HostLinks, Link, NodeLinks, channels};
 use crate::cells::{CellOptions, CellStructure};
 use crate::error::{Error, Result};
-use crate::render::{RenderStats, TraceCounters};
+use crate::render::{self, AaSummary, Adaptive, Pass, RenderStats, Sampling, TraceCounters};
 use crate::scene::Scene;
 use crate::trace::{Film, RayCounts, RayJob};
 
@@ -86,6 +86,21 @@ pub struct MachineStats {
 }
 
 impl MachineStats {
+    /// Adds a later pass: counts and times sum (passes run one after the
+    /// other), peaks are the larger; pixels traced stay pass 1's.
+    fn add_pass(&mut self, o: &MachineStats) {
+        self.virtual_seconds += o.virtual_seconds;
+        self.rays.merge(&o.rays);
+        self.counters.merge(&o.counters);
+        self.messages += o.messages;
+        self.message_bytes += o.message_bytes;
+        self.hops += o.hops;
+        for (a, b) in self.per_node.iter_mut().zip(&o.per_node) {
+            a.add_pass(b);
+        }
+        self.imbalance = busy_imbalance(&self.per_node);
+    }
+
     /// The counts a single-node render reports too.
     pub fn as_render_stats(&self) -> RenderStats {
         RenderStats {
@@ -194,30 +209,65 @@ impl Plan {
     }
 }
 
-/// Renders on the modelled machine. Errors: `Capacity` when a share does
-/// not fit a node (before any node starts), `Render` when a node fails.
+/// Renders on the modelled machine, one pass of `opts.spp` samples per
+/// pixel. Errors: `Capacity` when a share does not fit a node (before any
+/// node starts), `Render` when a node fails.
 pub fn render(
     scene: &Scene,
     topo: &Topology,
     opts: &MachineOptions,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<(Film, MachineStats, CellStructure)> {
+    let (film, stats, cs, _) = render_adaptive(scene, topo, opts, None, progress)?;
+    Ok((film, stats, cs))
+}
+
+/// Renders on the modelled machine by the passes of adaptive sampling
+/// (`render::aa`): the plan is made once, and each pass loads the nodes
+/// with the pixels and samples it renders. Statistics sum over passes.
+pub fn render_adaptive(
+    scene: &Scene,
+    topo: &Topology,
+    opts: &MachineOptions,
+    adaptive: Option<Adaptive>,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(Film, MachineStats, CellStructure, AaSummary)> {
     let start = Instant::now();
-    let d = topo.dimension;
-    let n = 1usize << d;
     let plan = Plan::new(scene, topo, opts);
     plan.check(topo)?;
-    let Plan {
-        cells: cs,
-        work,
-        owner,
-        shares,
-        window,
-        prepass_seconds,
-        replicated_bytes,
-        ..
-    } = plan;
-    let budget = topo.node_memory;
+    let sampling = Sampling {
+        spp: opts.spp.max(1),
+        adaptive,
+    };
+    let mut total: Option<MachineStats> = None;
+    let (film, aa) = render::aa::render_adaptive(opts.width, opts.height, &sampling, |pass| {
+        let (film, stats) = run_pass(&plan, topo, opts, pass, progress)?;
+        match &mut total {
+            None => total = Some(stats),
+            Some(t) => t.add_pass(&stats),
+        }
+        Ok::<Film, Error>(film)
+    })?;
+    let mut stats = total.expect("at least one pass");
+    stats.wall_seconds = start.elapsed().as_secs_f64();
+    stats.build_seconds = plan.cells.stats.build_seconds;
+    stats.prepass_seconds = plan.prepass_seconds;
+    stats.replicated_bytes = plan.replicated_bytes;
+    stats.predicted_imbalance =
+        mapping::predicted_imbalance(&plan.work, &plan.owner, topo.dimension);
+    Ok((film, stats, plan.cells, aa))
+}
+
+/// One pass on the machine: start the nodes, load them, collect, stop.
+fn run_pass(
+    plan: &Plan,
+    topo: &Topology,
+    opts: &MachineOptions,
+    pass: &Pass<'_>,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(Film, MachineStats)> {
+    let d = topo.dimension;
+    let n = 1usize << d;
     let model = LinkModel {
         latency: topo.link_latency,
         bandwidth: topo.link_bandwidth,
@@ -225,7 +275,8 @@ pub fn render(
         compute_speed: topo.compute_speed,
     };
     let (mut host, node_links) = channels(d, opts.capacity);
-    let mut run = Run::new(opts, n, model);
+    let mut run = Run::new(opts.width, opts.height, pass.spp, n, model);
+    let pixels = pass.pixels.list().map(|l| l.to_vec());
     std::thread::scope(|sc| -> Result<()> {
         for (i, mut links) in node_links.into_iter().enumerate() {
             std::thread::Builder::new()
@@ -236,18 +287,20 @@ pub fn render(
         }
         // Load messages, one per node, in turn over the host's link.
         let mut loaded = Ok(());
-        for (i, (cells, local)) in shares.into_iter().enumerate() {
+        for (i, (cells, local)) in plan.shares.iter().enumerate() {
             let share = Share {
                 node: i as u16,
                 dimension: d,
-                cells,
-                scene: local,
-                owner: owner.clone(),
+                cells: cells.clone(),
+                scene: local.clone(),
+                owner: plan.owner.clone(),
                 width: opts.width,
                 height: opts.height,
-                spp: opts.spp.max(1),
-                window,
-                budget,
+                spp: pass.spp.max(1),
+                first_sample: pass.first_sample,
+                pixels: pixels.clone(),
+                window: plan.window,
+                budget: topo.node_memory,
                 link: model,
                 fail_after: opts.fail.filter(|f| f.0 as usize == i).map(|f| f.1),
             };
@@ -265,19 +318,13 @@ pub fn render(
             }
         }
     })?;
-    let film = run.film;
     let mut stats = MachineStats {
         dimension: d,
-        wall_seconds: 0.0,
         virtual_seconds: run.end_clock,
-        build_seconds: cs.stats.build_seconds,
-        prepass_seconds,
-        window,
+        window: plan.window,
         mapping: Some(opts.mapping),
-        predicted_imbalance: mapping::predicted_imbalance(&work, &owner, d),
         messages: run.messages,
         message_bytes: run.bytes,
-        replicated_bytes,
         ..Default::default()
     };
     run.reports.sort_by_key(|r| r.node);
@@ -302,17 +349,21 @@ pub fn render(
         )));
     }
     stats.pixels_traced = run.traced.iter().filter(|&&t| t).count() as u64;
-    stats.pixels_background = run.traced.len() as u64 - stats.pixels_traced;
-    let busy: Vec<f64> = run.reports.iter().map(|r| r.busy_seconds).collect();
+    stats.pixels_background = pass.pixels.len() - stats.pixels_traced;
+    stats.per_node = std::mem::take(&mut run.reports);
+    stats.imbalance = busy_imbalance(&stats.per_node);
+    Ok((run.film, stats))
+}
+
+/// The largest busy time against the mean.
+fn busy_imbalance(nodes: &[NodeReport]) -> f64 {
+    let busy: Vec<f64> = nodes.iter().map(|r| r.busy_seconds).collect();
     let mean = busy.iter().sum::<f64>() / busy.len().max(1) as f64;
-    stats.imbalance = if mean > 0.0 {
+    if mean > 0.0 {
         busy.iter().cloned().fold(0.0, f64::max) / mean
     } else {
         1.0
-    };
-    stats.per_node = std::mem::take(&mut run.reports);
-    stats.wall_seconds = start.elapsed().as_secs_f64();
-    Ok((film, stats, cs))
+    }
 }
 
 /// A node's thread: runs it, and turns an error or a panic into a
@@ -365,12 +416,12 @@ struct Run {
 }
 
 impl Run {
-    fn new(opts: &MachineOptions, nodes: usize, model: LinkModel) -> Self {
-        let pixels = opts.width as usize * opts.height as usize;
-        let samples = pixels * opts.spp.max(1) as usize;
+    fn new(width: u32, height: u32, spp: u32, nodes: usize, model: LinkModel) -> Self {
+        let pixels = width as usize * height as usize;
+        let samples = pixels * spp.max(1) as usize;
         Run {
-            film: Film::new(opts.width, opts.height),
-            spp: opts.spp.max(1) as u64,
+            film: Film::new(width, height),
+            spp: spp.max(1) as u64,
             nodes,
             model,
             clock: 0.0,
@@ -396,10 +447,25 @@ impl Run {
             *clock
         })
         .map_err(Error::Render)?;
+        self.transmit(host, node, bytes)
+    }
+
+    /// Sends a reply to a message that arrived at virtual time `at`: the
+    /// host answers each message as it comes (its link to each node is its
+    /// own), so a reply does not wait for the host's other traffic.
+    fn reply(&mut self, host: &mut dyn HostLinks, node: u16, body: &ToNode, at: f64) -> Result<()> {
+        let model = self.model;
+        let bytes = encode_stamped(body, |len| at + model.send_cost(len)).map_err(Error::Render)?;
+        self.transmit(host, node, bytes)
+    }
+
+    fn transmit(&mut self, host: &mut dyn HostLinks, node: u16, bytes: Vec<u8>) -> Result<()> {
         self.messages += 1;
         self.bytes += bytes.len() as u64;
-        host.send(node, bytes)
-            .map_err(|_| Error::Render(format!("node {node} stopped unexpectedly")))
+        // A node that already ended (failed) cannot take it; its own
+        // failure message says why, and the run stops on it.
+        let _ = host.send(node, bytes);
+        Ok(())
     }
 
     fn stop_all(&mut self, host: &mut dyn HostLinks) {
@@ -425,7 +491,8 @@ impl Run {
                 break;
             };
             let (sent_at, body): (f64, ToHost) = decode_stamped(&bytes).map_err(Error::Render)?;
-            self.clock = self.clock.max(sent_at + self.model.latency);
+            let arrival = sent_at + self.model.latency;
+            self.clock = self.clock.max(arrival);
             match body {
                 ToHost::Loaded { .. } => self.loaded += 1,
                 ToHost::Done { finished, .. } => {
@@ -452,7 +519,7 @@ impl Run {
                         for o in 0..self.nodes {
                             let c = std::mem::take(&mut self.credit[o]);
                             if c > 0 {
-                                self.send(host, o as u16, &ToNode::Credit(c))?;
+                                self.reply(host, o as u16, &ToNode::Credit(c), arrival)?;
                             }
                         }
                     }

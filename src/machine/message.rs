@@ -67,7 +67,12 @@ pub struct Share {
     pub owner: [Vec<u16>; 2],
     pub width: u32,
     pub height: u32,
+    /// Samples per pixel of this pass, and the index of its first sample
+    /// (`render::aa::Pass`).
     pub spp: u32,
+    pub first_sample: u32,
+    /// The pass's pixels; None: every pixel.
+    pub pixels: Option<Vec<u32>>,
     /// Primary paths the node may have unfinished at once (flow control:
     /// with every node's window, the paths in flight fit any node).
     pub window: u32,
@@ -143,6 +148,28 @@ pub struct Finished {
     pub sum: [i64; 3],
     /// False for samples of empty pixel areas, never traced.
     pub traced: bool,
+}
+
+impl NodeReport {
+    /// Adds the report of a later pass of the same node.
+    pub fn add_pass(&mut self, o: &NodeReport) {
+        self.peak_memory_bytes = self.peak_memory_bytes.max(o.peak_memory_bytes);
+        self.rays_processed += o.rays_processed;
+        for k in 0..4 {
+            self.rays_created[k] += o.rays_created[k];
+            self.rays_finished[k] += o.rays_finished[k];
+        }
+        self.messages_sent += o.messages_sent;
+        self.bytes_sent += o.bytes_sent;
+        self.hops += o.hops;
+        self.paths_forwarded += o.paths_forwarded;
+        self.intersection_tests += o.intersection_tests;
+        self.mailbox_hits += o.mailbox_hits;
+        self.cells_visited += o.cells_visited;
+        self.subtree_evaluations += o.subtree_evaluations;
+        self.busy_seconds += o.busy_seconds;
+        self.virtual_seconds += o.virtual_seconds;
+    }
 }
 
 /// What a node reports when it stops.

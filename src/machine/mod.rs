@@ -20,6 +20,6 @@ pub mod routing;
 pub mod topology;
 pub mod transport;
 
-pub use host::{DEFAULT_CAPACITY, MachineOptions, MachineStats, render};
+pub use host::{DEFAULT_CAPACITY, MachineOptions, MachineStats, render, render_adaptive};
 pub use mapping::Mapping;
 pub use topology::{Topology, parse_size};

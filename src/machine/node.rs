@@ -15,7 +15,8 @@
 //! work divided by the topology's compute speed, by the send cost of each
 //! message, and jumps to a message's arrival time when it was idle.
 
-use std::collections::VecDeque;
+use std::cmp::Ordering;
+use std::collections::{BinaryHeap, VecDeque};
 
 use super::codec::{decode_stamped, encode_stamped};
 use super::message::{
@@ -24,7 +25,7 @@ use super::message::{
 use super::routing::{NodeId, next_dimension};
 use super::transport::{Link, NodeLinks};
 use crate::cells::{CellStructure, CellTracer, Region, Walk};
-use crate::render::sample_offset;
+use crate::render::sample_offset_from;
 use crate::scene::Scene;
 use crate::trace::{CameraFrame, Film, RayJob, RayKind, Shader};
 
@@ -105,6 +106,35 @@ pub fn run(id: u16, links: &mut dyn NodeLinks) -> Result<(), NodeError> {
     node.run()
 }
 
+/// A path waiting in a node, ordered so that the heap's top is the
+/// earliest arrival (ties by sample, so the order is deterministic).
+struct Queued {
+    arrival: f64,
+    path: Path,
+}
+
+impl Ord for Queued {
+    fn cmp(&self, o: &Self) -> Ordering {
+        o.arrival
+            .total_cmp(&self.arrival)
+            .then(o.path.sample.cmp(&self.path.sample))
+    }
+}
+
+impl PartialOrd for Queued {
+    fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
+        Some(self.cmp(o))
+    }
+}
+
+impl PartialEq for Queued {
+    fn eq(&self, o: &Self) -> bool {
+        self.cmp(o) == Ordering::Equal
+    }
+}
+
+impl Eq for Queued {}
+
 struct Node<'a> {
     id: u16,
     share: &'a Share,
@@ -113,8 +143,11 @@ struct Node<'a> {
     shader: Shader<'a>,
     cam: CameraFrame,
     primaries: Primaries,
+    /// Credits usable now, and credits on their way with their arrival.
     credits: u32,
-    queue: VecDeque<Path>,
+    arriving_credits: VecDeque<(f64, u32)>,
+    /// Paths to trace, earliest virtual arrival first.
+    queue: BinaryHeap<Queued>,
     /// Per link (dimensions, then the host): paths to batch, encoded
     /// messages waiting for room.
     batches: Vec<Vec<Routed>>,
@@ -169,7 +202,8 @@ impl<'a> Node<'a> {
             cam: CameraFrame::new(&share.scene, share.width, share.height),
             primaries: Primaries::new(share, id),
             credits: share.window,
-            queue: VecDeque::new(),
+            arriving_credits: VecDeque::new(),
+            queue: BinaryHeap::new(),
             batches: vec![Vec::new(); d + 1],
             waiting: vec![VecDeque::new(); d + 1],
             done: Vec::new(),
@@ -268,16 +302,17 @@ impl<'a> Node<'a> {
             }
             self.release(bytes.len());
             drop(bytes);
-            // The message is here once sent and across the wire; an idle
-            // node waited for it.
-            self.clock = self.clock.max(sent_at + self.model.latency);
+            // The message is here once sent and across the wire. What it
+            // brings waits, with that arrival time, until the node's clock
+            // gets there (`work_a_little`); only forwarding is at once.
+            let arrival = sent_at + self.model.latency;
             match body {
                 ToNode::Rays(paths) => {
                     for r in paths {
-                        self.arrive(r)?;
+                        self.arrive(r, arrival)?;
                     }
                 }
-                ToNode::Credit(n) => self.credits += n,
+                ToNode::Credit(n) => self.arriving_credits.push_back((arrival, n)),
                 ToNode::Stop => self.stopping = true,
                 ToNode::Load(_) => return Err("a second load message".into()),
             }
@@ -288,11 +323,17 @@ impl<'a> Node<'a> {
 
     /// A path arriving over a link (its bytes held): ours to trace, or to
     /// pass on.
-    fn arrive(&mut self, r: Routed) -> Result<(), NodeError> {
+    fn arrive(&mut self, r: Routed, arrival: f64) -> Result<(), NodeError> {
         if r.dest == self.id {
-            self.queue.push_back(r.path);
+            self.queue.push(Queued {
+                arrival,
+                path: r.path,
+            });
             Ok(())
         } else {
+            // Forwarding happens when the message arrives (the iPSC's
+            // routing is done by the node's processor, so it is charged).
+            self.clock = self.clock.max(arrival);
             self.report.paths_forwarded += 1;
             self.route(r)
         }
@@ -315,15 +356,36 @@ impl<'a> Node<'a> {
     /// One unit of work: a queued path, or a new primary path. False when
     /// there was nothing to do.
     fn work_a_little(&mut self) -> Result<bool, NodeError> {
-        if let Some(path) = self.queue.pop_front() {
-            self.trace(path)?;
-            return Ok(true);
+        // The modelled order: what has arrived by the node's clock, the
+        // earliest first; new primary paths whenever nothing that arrived
+        // earlier waits; the clock jumps ahead only when nothing is left
+        // before. (A node cannot undo work its thread already did, so a
+        // message that the host delivered late in real time but early in
+        // virtual time is taken late: the model errs on the slow side.)
+        while let Some(&(t, n)) = self.arriving_credits.front() {
+            if t > self.clock {
+                break;
+            }
+            self.credits += n;
+            self.arriving_credits.pop_front();
         }
-        // New primary paths while credit lasts; background samples of
-        // empty pixel areas finish at once and need none.
-        loop {
-            let Some(background) = self.primaries.peek(&self.share.cells, &self.cam) else {
-                if !self.generated_reported {
+        let earliest = self.queue.peek().map(|q| q.arrival);
+        let queued_before_now = earliest.is_some_and(|t| t <= self.clock);
+        if !queued_before_now {
+            match self.primaries.peek(&self.share.cells, &self.cam) {
+                Some(background) if background || self.credits > 0 => {
+                    return self.start_primary().map(|()| true);
+                }
+                Some(_) if earliest.is_none() => {
+                    // Only credit can let the node go on: wait for it.
+                    if let Some(&(t, n)) = self.arriving_credits.front() {
+                        self.clock = self.clock.max(t);
+                        self.credits += n;
+                        self.arriving_credits.pop_front();
+                        return self.start_primary().map(|()| true);
+                    }
+                }
+                None if !self.generated_reported => {
                     self.generated_reported = true;
                     let samples = self.primaries.generated;
                     self.send_host(ToHost::Generated {
@@ -332,44 +394,49 @@ impl<'a> Node<'a> {
                     })?;
                     return Ok(true);
                 }
-                return Ok(false);
-            };
-            if !background && self.credits == 0 {
-                break;
+                _ => {}
             }
-            let (job, sample, _) = self
-                .primaries
-                .next(&self.share.cells, &self.cam)
-                .ok_or("a peeked sample vanished")?;
-            self.report.rays_created[RayKind::Primary.index()] += 1;
-            if background {
-                self.report.rays_finished[RayKind::Primary.index()] += 1;
-                self.finish_sample(Finished {
-                    sample,
-                    origin: self.id,
-                    sum: Film::quantize(self.shader.miss(&job)),
-                    traced: false,
-                })?;
-                continue;
-            }
-            self.credits -= 1;
-            let path = Path {
-                sample,
-                origin: self.id,
-                sum: [0; 3],
-                active: Active {
-                    job,
-                    number: 0,
-                    t_min: 0.0,
-                    at: None,
-                },
-                stack: Vec::new(),
-            };
-            self.hold(path.bytes());
-            self.trace(path)?;
+        }
+        if let Some(q) = self.queue.pop() {
+            self.clock = self.clock.max(q.arrival);
+            self.trace(q.path)?;
             return Ok(true);
         }
         Ok(false)
+    }
+
+    /// Starts the next primary sample: a background sample of an empty
+    /// pixel area finishes at once; any other needs (and takes) a credit.
+    fn start_primary(&mut self) -> Result<(), NodeError> {
+        let (job, sample, background) = self
+            .primaries
+            .next(&self.share.cells, &self.cam)
+            .ok_or("a peeked sample vanished")?;
+        self.report.rays_created[RayKind::Primary.index()] += 1;
+        if background {
+            self.report.rays_finished[RayKind::Primary.index()] += 1;
+            return self.finish_sample(Finished {
+                sample,
+                origin: self.id,
+                sum: Film::quantize(self.shader.miss(&job)),
+                traced: false,
+            });
+        }
+        self.credits -= 1;
+        let path = Path {
+            sample,
+            origin: self.id,
+            sum: [0; 3],
+            active: Active {
+                job,
+                number: 0,
+                t_min: 0.0,
+                at: None,
+            },
+            stack: Vec::new(),
+        };
+        self.hold(path.bytes());
+        self.trace(path)
     }
 
     /// Follows a path (its bytes held) as far as this node's cells go:
@@ -538,15 +605,22 @@ impl<'a> Node<'a> {
     }
 }
 
-/// The primary samples a node owns, generated lazily: for each front super
-/// cell it owns, the pixels its rectangle touches, and of their samples
-/// those whose ray stays in that super cell (every sample belongs to
-/// exactly one super cell, so to exactly one node).
+/// The primary samples of a pass that a node owns, generated lazily. For
+/// a pass over every pixel: for each front super cell it owns, the pixels
+/// its rectangle touches, and of their samples those whose ray stays in
+/// that super cell (every sample belongs to exactly one super cell, so to
+/// exactly one node). For a pass over listed pixels (adaptive refinement):
+/// the listed pixels' samples whose super cell it owns.
 struct Primaries {
+    id: u16,
+    owner: Vec<u16>,
     supers: Vec<u32>,
+    list: Option<Vec<u32>>,
     spp: u32,
+    first_sample: u32,
     width: u32,
-    /// Position: super cell index, its pixel box, next pixel and sample.
+    /// Position: super cell index (or list index), its pixel box, next
+    /// pixel and sample.
     at: usize,
     bx: [u32; 4],
     i: u32,
@@ -558,12 +632,17 @@ struct Primaries {
 
 impl Primaries {
     fn new(share: &Share, id: u16) -> Self {
-        let supers = (0..share.owner[0].len() as u32)
-            .filter(|&s| share.owner[Region::Front as usize][s as usize] == id)
+        let owner = share.owner[Region::Front as usize].clone();
+        let supers = (0..owner.len() as u32)
+            .filter(|&s| owner[s as usize] == id)
             .collect();
         let mut p = Primaries {
+            id,
+            owner,
             supers,
+            list: share.pixels.clone(),
             spp: share.spp.max(1),
+            first_sample: share.first_sample,
             width: share.width,
             at: 0,
             bx: [0; 4],
@@ -573,8 +652,10 @@ impl Primaries {
             pending: None,
             generated: 0,
         };
-        let cam = CameraFrame::new(&share.scene, share.width, share.height);
-        p.advance_super(&share.cells, &cam);
+        if p.list.is_none() {
+            let cam = CameraFrame::new(&share.scene, share.width, share.height);
+            p.advance_super(&share.cells, &cam);
+        }
         p
     }
 
@@ -590,29 +671,55 @@ impl Primaries {
         self.pending.take().or_else(|| self.produce(cs, cam))
     }
 
-    fn produce(&mut self, cs: &CellStructure, cam: &CameraFrame) -> Option<(RayJob, u64, bool)> {
-        let front = cs.region(Region::Front);
-        loop {
-            let &s = self.supers.get(self.at)?;
-            let (i, j, k) = (self.i, self.j, self.k);
-            // Advance: sample, pixel, row, super cell.
+    /// The next candidate (pixel, sample) and the super cell it must fall
+    /// in (None: any super cell this node owns).
+    fn candidate(
+        &mut self,
+        cs: &CellStructure,
+        cam: &CameraFrame,
+    ) -> Option<(u32, u32, Option<u32>)> {
+        let k = self.k;
+        if let Some(list) = &self.list {
+            let &pixel = list.get(self.at)?;
             self.k += 1;
             if self.k == self.spp {
                 self.k = 0;
-                self.i += 1;
-                if self.i == self.bx[1] {
-                    self.i = self.bx[0];
-                    self.j += 1;
-                    if self.j == self.bx[3] {
-                        self.at += 1;
-                        self.advance_super(cs, cam);
-                    }
+                self.at += 1;
+            }
+            return Some((pixel, k, None));
+        }
+        let &s = self.supers.get(self.at)?;
+        let (i, j) = (self.i, self.j);
+        // Advance: sample, pixel, row, super cell.
+        self.k += 1;
+        if self.k == self.spp {
+            self.k = 0;
+            self.i += 1;
+            if self.i == self.bx[1] {
+                self.i = self.bx[0];
+                self.j += 1;
+                if self.j == self.bx[3] {
+                    self.at += 1;
+                    self.advance_super(cs, cam);
                 }
             }
-            let pixel = j * self.width + i;
-            let (fx, fy) = sample_offset(pixel, k, self.spp);
+        }
+        Some((j * self.width + i, k, Some(s)))
+    }
+
+    fn produce(&mut self, cs: &CellStructure, cam: &CameraFrame) -> Option<(RayJob, u64, bool)> {
+        let front = cs.region(Region::Front);
+        loop {
+            let (pixel, k, want) = self.candidate(cs, cam)?;
+            let (i, j) = (pixel % self.width, pixel / self.width);
+            let (fx, fy) = sample_offset_from(pixel, k, self.spp, self.first_sample);
             let job = cam.primary(i, j, fx, fy, 1.0 / self.spp as f64);
-            if cs.primary_super_cell(&job.ray) != s {
+            let s = cs.primary_super_cell(&job.ray);
+            let mine = match want {
+                Some(w) => s == w,
+                None => self.owner[s as usize] == self.id,
+            };
+            if !mine {
                 continue;
             }
             self.generated += 1;

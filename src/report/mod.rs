@@ -6,6 +6,7 @@
 pub mod image_io;
 pub mod overlay;
 pub mod plot;
+pub mod quality;
 pub mod scale;
 pub mod stats;
 

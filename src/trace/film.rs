@@ -8,6 +8,9 @@ use crate::geom::Color;
 /// Fixed-point scale: 2^32 units per unit of linear radiance.
 const SCALE: f64 = 4294967296.0;
 
+/// One unit of linear radiance in fixed point (`SCALE` as an integer).
+pub const FIXED_ONE: i64 = 1 << 32;
+
 /// A band of image rows `[y0, y0 + rows)` with fixed-point RGB sums.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Film {
@@ -54,6 +57,18 @@ impl Film {
         for k in 0..3 {
             s[k] = s[k].wrapping_add(q[k]);
         }
+    }
+
+    /// The fixed-point sums of the global pixel index `pixel`.
+    pub fn fixed(&self, pixel: u32) -> [i64; 3] {
+        self.sums[pixel as usize - self.y0 as usize * self.width as usize]
+    }
+
+    /// Replaces the sums of the global pixel index `pixel` (adaptive
+    /// antialiasing combines passes per pixel, in fixed point).
+    pub fn set_fixed(&mut self, pixel: u32, q: [i64; 3]) {
+        let i = pixel as usize - self.y0 as usize * self.width as usize;
+        self.sums[i] = q;
     }
 
     /// Adds another band's sums (which must lie inside this one).

@@ -10,7 +10,7 @@ const BIN: &str = env!("CARGO_BIN_EXE_hypercast");
 
 /// Runs `hypercast` in `dir` (a fresh temporary folder, so "no file left"
 /// is checkable), with the environment that would make a panic talk.
-fn run(dir: &Path, args: &[&str]) -> Output {
+pub fn run(dir: &Path, args: &[&str]) -> Output {
     Command::new(BIN)
         .args(args)
         .current_dir(dir)
@@ -19,11 +19,11 @@ fn run(dir: &Path, args: &[&str]) -> Output {
         .expect("the binary runs")
 }
 
-fn stderr(o: &Output) -> String {
+pub fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
-fn files_in(dir: &Path) -> Vec<PathBuf> {
+pub fn files_in(dir: &Path) -> Vec<PathBuf> {
     let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
         .unwrap()
         .map(|e| e.unwrap().path())
@@ -32,13 +32,13 @@ fn files_in(dir: &Path) -> Vec<PathBuf> {
     v
 }
 
-fn path_str(p: &Path) -> &str {
+pub fn path_str(p: &Path) -> &str {
     p.to_str().expect("UTF-8 path")
 }
 
 /// What every refusal must look like: exit 2, one line on stderr naming
 /// the problem, no panic, nothing written. Returns the problems found.
-fn check_refusal(dir: &Path, args: &[&str], expected: &str) -> Vec<String> {
+pub fn check_refusal(dir: &Path, args: &[&str], expected: &str) -> Vec<String> {
     let o = run(dir, args);
     let err = stderr(&o);
     let mut problems = Vec::new();
@@ -159,7 +159,7 @@ fn bad_options_are_refused_before_rendering() {
 }
 
 /// Renders `scenes/small/sphere.ron` at 40x30 into `dir/name`.
-fn render_ok(dir: &Path, name: &str, extra: &[&str]) -> Output {
+pub fn render_ok(dir: &Path, name: &str, extra: &[&str]) -> Output {
     let sphere = util::repo("scenes/small/sphere.ron");
     let mut args = vec![
         "render",
@@ -267,7 +267,7 @@ fn stats_json_has_the_keys_of_cli_md() {
 }
 
 /// Parses `rmse X  psnr Y dB ...` from stdout.
-fn metrics(o: &Output) -> (f64, String) {
+pub fn metrics(o: &Output) -> (f64, String) {
     let out = String::from_utf8_lossy(&o.stdout).into_owned();
     let words: Vec<&str> = out.split_whitespace().collect();
     let after = |k: &str| {
