@@ -33,6 +33,10 @@ pub enum Command {
     Render(RenderArgs),
     /// Show the paper's subdivision of a scene: counts, memory, and an overlay picture.
     Inspect(InspectArgs),
+    /// Write a generated scene (sphereflake, rings, jagged ball, random CSG) as RON, JSON or NFF.
+    Gen(crate::cmd::generate::GenArgs),
+    /// Convert a scene to POV-Ray 3.7 (.pov), RON, JSON or NFF.
+    Convert(crate::cmd::convert::ConvertArgs),
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -131,6 +135,8 @@ pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Render(a) => run_render(a),
         Command::Inspect(a) => run_inspect(a),
+        Command::Gen(a) => crate::cmd::generate::run(a),
+        Command::Convert(a) => crate::cmd::convert::run(a),
     }
 }
 
@@ -157,7 +163,7 @@ fn default_output(scene: &Path) -> PathBuf {
     p
 }
 
-fn check_writable_dir(path: &Path) -> Result<()> {
+pub(crate) fn check_writable_dir(path: &Path) -> Result<()> {
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),

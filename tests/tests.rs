@@ -7,6 +7,8 @@ mod bundled;
 mod cells;
 #[path = "it/cli.rs"]
 mod cli;
+#[path = "it/convert.rs"]
+mod convert;
 #[path = "it/csg_props.rs"]
 mod csg_props;
 #[path = "it/known_answer.rs"]
