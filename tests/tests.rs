@@ -13,6 +13,8 @@ mod convert;
 mod csg_props;
 #[path = "it/known_answer.rs"]
 mod known_answer;
+#[path = "it/povray.rs"]
+mod povray;
 #[path = "it/shading.rs"]
 mod shading;
 
