@@ -32,14 +32,19 @@
 //! regularised for solids (inner faces vanish) while surfaces (triangles,
 //! polygons, open cylinders and cones) are always kept. POV-Ray's `union`
 //! keeps every inner face, its `merge` removes them and also removes
-//! surfaces inside solids. The two agree with ours whenever no inner face
-//! can be seen: every material opaque and the eye outside every solid. That
-//! is checked (the eye by evaluating the whole tree along a ray from it),
-//! and when it fails the solids are written under `merge`s (the top-level
-//! list too) and the surfaces beside them under plain `union`s, which is
-//! our meaning exactly. Otherwise plain `union`s, which POV-Ray renders
-//! faster. Assemblies are unions. A box of zero thickness (which bounds
-//! nothing here) becomes an empty intersection of two half-spaces.
+//! surfaces inside solids. The two agree with ours wherever no inner face
+//! can be seen, which is decided per top-level object: an object is
+//! *careful* when it holds a transmissive material or the eye is inside it
+//! (its spans along a ray from the eye, unclipped, contain the eye). In a
+//! careful object every union is a `merge` of its solids, its surfaces
+//! written beside it; and the top-level objects whose bounds overlap a
+//! careful one are written together with it under one `merge` (solids) with
+//! their surfaces apart: our meaning exactly. Everything else keeps plain
+//! `union`s and separate top-level objects, which POV-Ray renders much
+//! faster (a `merge` tests every hit for being inside its siblings), so a
+//! scene with one glass is not slowed down everywhere. Assemblies are
+//! unions. A box of zero thickness (which bounds nothing here) becomes an
+//! empty intersection of two half-spaces.
 //!
 //! **Materials** inherit as ours do: POV-Ray applies a CSG object's
 //! material to every part that has none, so a material is written where
@@ -52,7 +57,7 @@ use super::model::{Node, SceneFile, Vector};
 use super::nff::number;
 use super::{Material, Scene};
 use crate::Result;
-use crate::csg::{EvalCounts, Evaluator};
+use crate::csg::{CsgNode, EvalCounts, Evaluator};
 use crate::geom::Ray;
 
 /// Writes `model` as a POV-Ray 3.7 scene; `source` names it in the header
@@ -62,43 +67,96 @@ pub fn write_pov(model: &SceneFile, source: &Path) -> Result<String> {
     // thread's large stack, like every other walk of a model.
     super::load::on_load_stack(|| {
         let (scene, _) = super::load::compile(model, source)?;
-        let regularise = needs_regularised_unions(&scene);
+        let plan = TopLevel::plan(&scene, model.objects.len());
         let mut w = PovWriter {
             scene: &scene,
             out: String::new(),
-            regularise,
+            regularise: false,
         };
         w.header(model, source);
-        w.objects(model);
+        w.objects(model, &plan);
         Ok(w.out)
     })?
 }
 
-/// True when some inner face of a union could be seen: a transmissive
-/// material, or the eye inside a solid (the whole tree's spans along a ray
-/// from the eye, unclipped, contain the eye's parameter 0).
-fn needs_regularised_unions(scene: &Scene) -> bool {
-    if scene
-        .primitives
-        .iter()
-        .any(|p| scene.material(p.material).transmit > 0.0)
-    {
-        return true;
+/// How the top-level objects are written (see the module docs).
+struct TopLevel {
+    /// Per object: holds a transmissive material, or the eye.
+    careful: Vec<bool>,
+    /// Per object: the group it is merged with (the index of the group's
+    /// first object), or None for an object written on its own.
+    group: Vec<Option<usize>>,
+}
+
+impl TopLevel {
+    fn plan(scene: &Scene, objects: usize) -> TopLevel {
+        let tree = &scene.tree;
+        let nodes = tree.root.map_or(&[][..], |r| tree.children_of(r));
+        if nodes.len() != objects {
+            // Not the one-node-per-object tree `load` builds: be careful
+            // everywhere, which is exact, only slower in POV-Ray.
+            return TopLevel {
+                careful: vec![true; objects],
+                group: vec![Some(0); objects],
+            };
+        }
+        let cam = &scene.camera;
+        let ray = Ray::new(cam.eye, cam.look_at - cam.eye);
+        let mut eval = Evaluator::new();
+        let mut counts = EvalCounts::default();
+        let careful: Vec<bool> = nodes
+            .iter()
+            .map(|&node| {
+                let mut stack = vec![node];
+                let mut transmissive = false;
+                while let Some(n) = stack.pop() {
+                    if let CsgNode::Leaf(p) = tree.nodes[n.index()] {
+                        let m = scene.material(scene.primitives[p.index()].material);
+                        transmissive |= m.transmit > 0.0;
+                    }
+                    stack.extend_from_slice(tree.children_of(n));
+                }
+                let spans = eval.evaluate(tree, node, &ray, false, &mut counts, |p| {
+                    scene.primitives[p.index()].intersect(&ray)
+                });
+                let eye_inside = spans
+                    .spans
+                    .iter()
+                    .any(|s| s.enter.t <= 0.0 && s.exit.t >= 0.0);
+                transmissive || eye_inside
+            })
+            .collect();
+        // Union-find over "overlaps a careful object".
+        let mut parent: Vec<usize> = (0..objects).collect();
+        fn root(parent: &mut [usize], mut i: usize) -> usize {
+            while parent[i] != i {
+                parent[i] = parent[parent[i]];
+                i = parent[i];
+            }
+            i
+        }
+        let bounds = |i: usize| tree.cull_bounds[nodes[i].index()];
+        for i in (0..objects).filter(|&i| careful[i]) {
+            for j in 0..objects {
+                if j != i && bounds(i).overlaps(&bounds(j)) {
+                    let (a, b) = (root(&mut parent, i), root(&mut parent, j));
+                    parent[a.max(b)] = a.min(b);
+                }
+            }
+        }
+        let mut size = vec![0usize; objects];
+        for i in 0..objects {
+            let r = root(&mut parent, i);
+            size[r] += 1;
+        }
+        let group = (0..objects)
+            .map(|i| {
+                let r = root(&mut parent, i);
+                (size[r] > 1 || careful[i]).then_some(r)
+            })
+            .collect();
+        TopLevel { careful, group }
     }
-    let Some(root) = scene.tree.root else {
-        return false;
-    };
-    let cam = &scene.camera;
-    let ray = Ray::new(cam.eye, cam.look_at - cam.eye);
-    let mut eval = Evaluator::new();
-    let mut counts = EvalCounts::default();
-    let spans = eval.evaluate(&scene.tree, root, &ray, false, &mut counts, |p| {
-        scene.primitives[p.index()].intersect(&ray)
-    });
-    spans
-        .spans
-        .iter()
-        .any(|s| s.enter.t <= 0.0 && s.exit.t >= 0.0)
 }
 
 /// `<x, y, z>`.
@@ -133,7 +191,8 @@ impl Part {
 struct PovWriter<'a> {
     scene: &'a Scene,
     out: String,
-    /// Write solids under `merge` and surfaces apart (see the module docs).
+    /// The object being written is careful: its unions of solids are
+    /// `merge`s (see the module docs).
     regularise: bool,
 }
 
@@ -199,25 +258,43 @@ impl PovWriter<'_> {
         self.out.push('\n');
     }
 
-    fn objects(&mut self, model: &SceneFile) {
-        if !self.regularise {
-            for node in &model.objects {
-                self.node(node, 0, Part::All, None, true, &[]);
-            }
-            return;
-        }
-        if model.objects.iter().any(|n| Part::Solids.holds(n)) {
-            self.line(0, "merge {");
-            for node in &model.objects {
-                if Part::Solids.holds(node) {
-                    self.node(node, 1, Part::Solids, None, true, &[]);
+    fn objects(&mut self, model: &SceneFile, plan: &TopLevel) {
+        for (i, node) in model.objects.iter().enumerate() {
+            match plan.group[i] {
+                None => {
+                    self.regularise = false;
+                    self.node(node, 0, Part::All, None, true, &[]);
                 }
+                // A group is written where its first object stands.
+                Some(g) if g == i => self.group(model, plan, g),
+                Some(_) => {}
+            }
+        }
+    }
+
+    /// The objects of group `g`: their solids under one `merge` (unions
+    /// inside careful objects merged too), their surfaces beside it.
+    fn group(&mut self, model: &SceneFile, plan: &TopLevel, g: usize) {
+        let members: Vec<usize> = (g..model.objects.len())
+            .filter(|&i| plan.group[i] == Some(g))
+            .collect();
+        let solids: Vec<usize> = members
+            .iter()
+            .copied()
+            .filter(|&i| Part::Solids.holds(&model.objects[i]))
+            .collect();
+        if !solids.is_empty() {
+            self.line(0, "merge {");
+            for &i in &solids {
+                self.regularise = plan.careful[i];
+                self.node(&model.objects[i], 1, Part::Solids, None, true, &[]);
             }
             self.line(0, "}");
         }
-        for node in &model.objects {
-            if Part::Surfaces.holds(node) {
-                self.node(node, 0, Part::Surfaces, None, true, &[]);
+        for &i in &members {
+            if Part::Surfaces.holds(&model.objects[i]) {
+                self.regularise = plan.careful[i];
+                self.node(&model.objects[i], 0, Part::Surfaces, None, true, &[]);
             }
         }
     }
@@ -494,20 +571,25 @@ mod tests {
     }
 
     #[test]
-    fn an_eye_inside_a_solid_regularises_unions_and_keeps_surfaces_apart() {
+    fn an_eye_inside_a_solid_merges_what_overlaps_it_and_keeps_surfaces_apart() {
         let p = pov(&format!(
             "({CAMERA}, objects: [
-                Union(children: [Sphere(center: (0, 0, 0), radius: 1),
-                    Triangle(a: (0, 0, 0), b: (1, 0, 0), c: (0, 0, 1))]),
-                Sphere(center: (0, -10, 0), radius: 1),
+                Union(children: [Sphere(center: (0, -9, 0), radius: 0.5),
+                    Triangle(a: (0, -9.5, 0), b: (1, -9.5, 0), c: (0, -9.5, 1))]),
+                Sphere(center: (0, -10, 0), radius: 3),
+                Union(children: [Sphere(center: (0, 5, 0), radius: 1), Sphere(center: (0, 6, 0), radius: 1)]),
             ])"
         ));
-        let merge = p.find("merge {").expect("merge");
-        let inner = p[merge + 1..].find("merge {").expect("inner merge");
+        // One top-level merge of the eye's sphere and the union it
+        // overlaps (which, the eye being outside it, stays a union), the
+        // triangle after it, the far union on its own.
+        assert_eq!(p.matches("merge {").count(), 1, "{p}");
+        let merge = p.find("merge {").unwrap();
+        let union = p.find("union {").unwrap();
         let triangle = p.find("triangle").unwrap();
-        // The triangle is written apart, after the solids' merge.
-        assert!(triangle > merge + inner, "{p}");
-        assert_eq!(p.matches("sphere {").count(), 2);
+        let far = p.rfind("union {").unwrap();
+        assert!(merge < union && union < triangle && triangle < far, "{p}");
+        assert_eq!(p.matches("sphere {").count(), 4);
     }
 
     #[test]
