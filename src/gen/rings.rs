@@ -18,7 +18,7 @@ use std::collections::BTreeMap;
 use std::f64::consts::{FRAC_PI_4, PI, TAU};
 
 use crate::geom::Vec3;
-use crate::scene::model::{Camera, Light, Node, SceneFile, Vector};
+use crate::scene::model::{Node, SceneFile, Vector};
 use crate::scene::nff;
 
 /// The SPD's default size factor.
@@ -78,30 +78,8 @@ pub fn rings(size: u32) -> SceneFile {
         ("floor".into(), nff([0.8, 0.75, 0.6], 0.8, 0.0, 0.0)),
     ]);
     let r = f64::from(size) * SPACING + RING;
-    // Three lights without colour: NFF's grey sqrt(n)/(2n) for n = 3.
-    let lights = [[1.5, -1.0, 2.5], [-2.0, -1.5, 2.0], [0.5, 2.0, 3.0]]
-        .into_iter()
-        .map(|[x, y, z]| Light {
-            position: [x * r, y * r, z * r],
-            color: nff::light_grey(3),
-        })
-        .collect();
-    SceneFile {
-        camera: Camera {
-            eye: [0.0, -2.1 * r, 1.6 * r],
-            look_at: [0.0, 0.0, 0.0],
-            up: [0.0, 0.0, 1.0],
-            fov_y: 42.0,
-            width: 512,
-            height: 512,
-        },
-        background: [0.078, 0.361, 0.753],
-        ambient: [1.0; 3],
-        lights,
-        materials,
-        objects,
-        max_depth: 5,
-    }
+    let lights = [[1.5, -1.0, 2.5], [-2.0, -1.5, 2.0], [0.5, 2.0, 3.0]].map(|v| v.map(|x| x * r));
+    super::spd_scene([0.0, -2.1 * r, 1.6 * r], 42.0, &lights, materials, objects)
 }
 
 /// A ring centred at `c`, leaning outwards (away from the z axis) at 45°:

@@ -458,15 +458,7 @@ impl<'a> Parser<'a> {
             ));
         }
         let (width, height) = resolution.unwrap_or((512, 512));
-        // NFF's angle spans the centres of the outer rows; `fov_y` their edges.
-        let fov_y = if height > 1 {
-            let h = f64::from(height);
-            2.0 * ((angle.to_radians() / 2.0).tan() * h / (h - 1.0))
-                .atan()
-                .to_degrees()
-        } else {
-            angle
-        };
+        let fov_y = fov_y_of_angle(angle, height);
         Ok(Camera {
             eye: from,
             look_at: at,
@@ -561,8 +553,22 @@ fn triple(v: Vector) -> String {
     format!("{} {} {}", number(v[0]), number(v[1]), number(v[2]))
 }
 
+/// The vertical field of view (degrees, between the image's edges) of NFF's
+/// view `angle` over `height` pixel rows (between the centres of the outer
+/// rows): `tan(fov_y/2) = tan(angle/2)·h/(h−1)`.
+pub fn fov_y_of_angle(angle: f64, height: u32) -> f64 {
+    if height > 1 {
+        let h = f64::from(height);
+        2.0 * ((angle.to_radians() / 2.0).tan() * h / (h - 1.0))
+            .atan()
+            .to_degrees()
+    } else {
+        angle
+    }
+}
+
 /// NFF's view angle for a vertical field of view of `fov_y` degrees over
-/// `height` pixel rows: the inverse of the importer's conversion.
+/// `height` pixel rows: the inverse of `fov_y_of_angle`.
 fn nff_angle(fov_y: f64, height: u32) -> f64 {
     if height > 1 {
         let h = f64::from(height);
