@@ -47,6 +47,7 @@ pub enum GenScene {
     },
     /// A random CSG scene: every primitive and operator, transforms, mirrors and glass.
     RandomCsg {
+        /// The same seed and options give the same scene.
         #[arg(long, default_value_t = 0)]
         seed: u64,
         /// Number of primitives.
