@@ -40,6 +40,10 @@ pub enum Command {
     Scale(ScaleArgs),
     /// Error against run time: sweep samples per pixel, adaptive threshold and depth.
     Quality(quality::QualityArgs),
+    /// Write a generated scene (sphereflake, rings, jagged ball, random CSG) as RON, JSON or NFF.
+    Gen(crate::cmd::generate::GenArgs),
+    /// Convert a scene to POV-Ray 3.7 (.pov), RON, JSON or NFF.
+    Convert(crate::cmd::convert::ConvertArgs),
 }
 
 /// The modelled machine's options, shared by `render`, `inspect` and `scale`.
@@ -250,6 +254,8 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Inspect(a) => run_inspect(a),
         Command::Scale(a) => run_scale(a),
         Command::Quality(a) => quality::run(a),
+        Command::Gen(a) => crate::cmd::generate::run(a),
+        Command::Convert(a) => crate::cmd::convert::run(a),
     }
 }
 
@@ -278,7 +284,7 @@ fn default_output(scene: &Path) -> PathBuf {
     p
 }
 
-fn check_writable_dir(path: &Path) -> Result<()> {
+pub(crate) fn check_writable_dir(path: &Path) -> Result<()> {
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),

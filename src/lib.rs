@@ -10,6 +10,7 @@ pub mod scene;
 pub use error::{Error, Result};
 pub mod cells;
 pub mod cli;
+pub mod cmd;
 pub mod r#gen;
 pub mod machine;
 pub mod quality;

@@ -7,12 +7,16 @@ mod bundled;
 mod cells;
 #[path = "it/cli.rs"]
 mod cli;
+#[path = "it/convert.rs"]
+mod convert;
 #[path = "it/csg_props.rs"]
 mod csg_props;
 #[path = "it/known_answer.rs"]
 mod known_answer;
 #[path = "it/machine.rs"]
 mod machine;
+#[path = "it/povray.rs"]
+mod povray;
 #[path = "it/quality.rs"]
 mod quality;
 #[path = "it/robustness.rs"]

@@ -18,7 +18,8 @@
 use std::collections::BTreeMap;
 
 use crate::geom::Vec3;
-use crate::scene::model::{Camera, Light, Material, Node, SceneFile, Vector};
+use crate::scene::model::{Node, SceneFile, Vector};
+use crate::scene::nff;
 
 /// Number of spheres of a sphereflake of `level`.
 pub fn sphere_count(level: u32) -> u64 {
@@ -46,54 +47,18 @@ pub fn sphereflake(level: u32) -> SceneFile {
     // NFF `f` entities: `f 1 0.75 0.33 0.8 0 0 0 1` for the floor and
     // `f 1 0.9 0.7 0.5 0.5 3.0827 0 1` for the spheres (the Phong exponent
     // whose lobe halves at 37 degrees, log 0.5 / log cos 37°).
-    let nff = |color: Vector, kd: f64, ks: f64, shine: f64| Material {
-        color: Some(color),
-        ambient: Some(0.1),
-        diffuse: Some(kd),
-        specular: Some(ks),
-        shininess: Some(shine),
-        reflect: Some(ks),
-        transmit: Some(0.0),
-        ior: Some(1.0),
-        base: None,
-    };
+    let nff =
+        |color: Vector, kd: f64, ks: f64, shine: f64| nff::material(color, kd, ks, shine, 0.0, 1.0);
     let shine = 0.5f64.ln() / 37f64.to_radians().cos().ln();
     let materials = BTreeMap::from([
         ("floor".to_string(), nff([1.0, 0.75, 0.33], 0.8, 0.0, 0.0)),
         ("mirror".to_string(), nff([1.0, 0.9, 0.7], 0.5, 0.5, shine)),
     ]);
-    // Three lights without colour: NFF's grey sqrt(n)/(2n) for n = 3.
-    let grey = 3f64.sqrt() / 6.0;
-    let lights = [[4.0, 3.0, 2.0], [1.0, -4.0, 4.0], [-3.0, 1.0, 5.0]]
-        .into_iter()
-        .map(|position| Light {
-            position,
-            color: [grey; 3],
-        })
-        .collect();
-    // NFF's `angle 45` spans the centres of the outer pixel rows; `fov_y`
-    // spans the image's edges.
-    let h = 512.0;
-    let fov_y = 2.0
-        * ((45f64.to_radians() / 2.0).tan() * h / (h - 1.0))
-            .atan()
-            .to_degrees();
-    SceneFile {
-        camera: Camera {
-            eye: [2.1, 1.3, 1.7],
-            look_at: [0.0, 0.0, 0.0],
-            up: [0.0, 0.0, 1.0],
-            fov_y,
-            width: 512,
-            height: 512,
-        },
-        background: [0.078, 0.361, 0.753],
-        ambient: [1.0; 3],
-        lights,
-        materials,
-        objects,
-        max_depth: 5,
-    }
+    // Three lights without colour; NFF's `angle 45` spans the centres of
+    // the outer pixel rows, `fov_y` the image's edges.
+    let lights = [[4.0, 3.0, 2.0], [1.0, -4.0, 4.0], [-3.0, 1.0, 5.0]];
+    let fov_y = nff::fov_y_of_angle(45.0, 512);
+    super::spd_scene([2.1, 1.3, 1.7], fov_y, &lights, materials, objects)
 }
 
 /// Emits the sphere at `center` of `radius` whose children grow along the

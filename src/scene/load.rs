@@ -98,6 +98,37 @@ pub fn load_scene(path: &Path) -> Result<Scene> {
 /// box, an empty scene), each one line of the form `file: path: message`.
 pub fn load_scene_with_warnings(path: &Path) -> Result<(Scene, Vec<String>)> {
     let syntax = SceneSyntax::from_path(path)?;
+    let text = read_text(path)?;
+    parse_scene_str_with_warnings(&text, syntax, path)
+}
+
+/// Reads and validates the scene at `path` and returns its model (NFF
+/// imported), for converters: the same checks and messages as
+/// `load_scene`, the model instead of the compiled scene.
+pub fn load_model(path: &Path) -> Result<SceneFile> {
+    let syntax = SceneSyntax::from_path(path)?;
+    let text = read_text(path)?;
+    on_load_stack(|| {
+        let model = match syntax {
+            SceneSyntax::Ron | SceneSyntax::Json => {
+                let model = deserialize(&text, syntax, path)?;
+                compile(&model, path)?;
+                model
+            }
+            SceneSyntax::Nff => {
+                let nff = super::nff::parse_nff(&text, path)?;
+                compile(&nff.model, path).map_err(|e| nff.locate(e))?;
+                nff.model
+            }
+        };
+        // Returned to the caller's thread, as from `parse_model_str`:
+        // dropping a model thousands of levels deep needs a large stack.
+        Ok(model)
+    })?
+}
+
+/// A scene file's text: UTF-8, without a byte-order mark.
+fn read_text(path: &Path) -> Result<String> {
     let bytes = std::fs::read(path).map_err(|source| Error::Read {
         path: path.to_path_buf(),
         source,
@@ -118,8 +149,10 @@ pub fn load_scene_with_warnings(path: &Path) -> Result<(Scene, Vec<String>)> {
     };
     // A byte-order mark is no part of the text (and editors do not count
     // it in columns).
-    let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
-    parse_scene_str_with_warnings(text, syntax, path)
+    Ok(match text.strip_prefix('\u{feff}') {
+        Some(rest) => rest.to_string(),
+        None => text,
+    })
 }
 
 /// Parses, validates and compiles scene text; `file` is used in messages.
@@ -161,16 +194,22 @@ pub fn compile_model(model: &SceneFile, file: &Path) -> Result<(Scene, Vec<Strin
 }
 
 /// Writes a model as RON (pretty, with bare optional values as `load`
-/// reads them) or JSON (pretty). NFF cannot hold CSG and is not written.
+/// reads them), JSON (pretty) or NFF (`nff::write_nff`, which refuses what
+/// NFF cannot say; its errors name the scene `<scene>`: call `write_nff`
+/// directly to name the source).
 pub fn scene_to_string(model: &SceneFile, syntax: SceneSyntax) -> Result<String> {
-    on_load_stack(|| match syntax {
-        SceneSyntax::Ron => ron_options()
-            .to_string_pretty(model, ron::ser::PrettyConfig::default())
-            .map_err(|e| Error::Render(format!("cannot write the scene as RON: {e}"))),
-        SceneSyntax::Json => serde_json::to_string_pretty(model)
-            .map_err(|e| Error::Render(format!("cannot write the scene as JSON: {e}"))),
-        SceneSyntax::Nff => Err(Error::Usage("scenes cannot be written as NFF".into())),
-    })?
+    match syntax {
+        SceneSyntax::Ron => on_load_stack(|| {
+            ron_options()
+                .to_string_pretty(model, ron::ser::PrettyConfig::default())
+                .map_err(|e| Error::Render(format!("cannot write the scene as RON: {e}")))
+        })?,
+        SceneSyntax::Json => on_load_stack(|| {
+            serde_json::to_string_pretty(model)
+                .map_err(|e| Error::Render(format!("cannot write the scene as JSON: {e}")))
+        })?,
+        SceneSyntax::Nff => super::nff::write_nff(model, Path::new("<scene>")),
+    }
 }
 
 /// Checks an image size: at least 1x1, at most `MAX_SIDE` per side and
@@ -197,7 +236,7 @@ pub fn check_resolution(width: u32, height: u32) -> std::result::Result<(), Stri
 
 /// Runs `f` on a thread with a `LOAD_STACK_BYTES` stack and waits for it.
 /// A panic in `f` is a bug of ours, not bad input: it is passed on as is.
-fn on_load_stack<T: Send>(f: impl FnOnce() -> T + Send) -> Result<T> {
+pub(crate) fn on_load_stack<T: Send>(f: impl FnOnce() -> T + Send) -> Result<T> {
     std::thread::scope(|s| {
         let handle = std::thread::Builder::new()
             .name("scene-load".into())
@@ -541,7 +580,9 @@ struct Compiler<'m> {
     warnings: Vec<String>,
 }
 
-fn compile(model: &SceneFile, file: &Path) -> Result<(Scene, Vec<String>)> {
+/// Validates and compiles on the calling thread (which must have a large
+/// stack for deep trees: see `on_load_stack`).
+pub(crate) fn compile(model: &SceneFile, file: &Path) -> Result<(Scene, Vec<String>)> {
     let invalid = |path: String, message: String| Error::invalid(file, path, message);
 
     let camera = compile_camera(&model.camera).map_err(|(p, m)| invalid(p, m))?;

@@ -3,9 +3,11 @@
 //! syntax and the meaning of every field of `SCENE_FORMAT.md`; knows nothing
 //! of cells, nodes or images.
 
+pub mod flat;
 pub mod load;
 pub mod model;
 pub mod nff;
+pub mod pov;
 
 pub use load::{SceneSyntax, load_scene, parse_scene_str};
 

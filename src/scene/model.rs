@@ -238,6 +238,23 @@ impl Node {
         }
     }
 
+    /// The node's own `material` field, to change it.
+    pub fn material_mut(&mut self) -> &mut Option<String> {
+        match self {
+            Node::Sphere { material, .. }
+            | Node::Box { material, .. }
+            | Node::Cylinder { material, .. }
+            | Node::Cone { material, .. }
+            | Node::Triangle { material, .. }
+            | Node::Polygon { material, .. }
+            | Node::Union { material, .. }
+            | Node::Intersection { material, .. }
+            | Node::Difference { material, .. }
+            | Node::Assembly { material, .. }
+            | Node::Transform { material, .. } => material,
+        }
+    }
+
     /// True for nodes that bound no volume (`SCENE_FORMAT.md`: triangles,
     /// polygons, uncapped cylinders and cones), which may appear only under
     /// `Union` and `Assembly`.

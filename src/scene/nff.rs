@@ -1,6 +1,7 @@
-//! Import of Eric Haines' Neutral File Format (NFF, the format of the
-//! Standard Procedural Databases) into the scene `model`. Owns NFF syntax
-//! and the mapping of its entities onto `SCENE_FORMAT.md`; validation is
+//! Eric Haines' Neutral File Format (NFF, the format of the Standard
+//! Procedural Databases): import into the scene `model` (`parse_nff`), and
+//! export of the models NFF can express (`write_nff`). Owns NFF syntax and
+//! the mapping of its entities onto `SCENE_FORMAT.md`; validation is
 //! `load`'s, with errors pointed back at NFF lines by `NffScene::locate`.
 //!
 //! Entities, one per line (`#` starts a comment anywhere), numbers
@@ -33,10 +34,27 @@
 //! - `pp n`, then `n` lines `x y z nx ny nz`: the same; normals are ignored.
 //!
 //! Unknown entities and malformed lines are `Error::Syntax` with the line.
+//!
+//! **Export** writes exactly what the importer reads back as the same scene
+//! (numbers in their shortest exact decimal form, so a written file renders
+//! like its model up to the `angle` ↔ `fov_y` conversion's last bit), and
+//! refuses, naming the node or field, what NFF cannot say: CSG operators
+//! other than unions and assemblies (which are flattened: NFF's object list
+//! is itself a union), boxes and capped cylinders and cones (NFF's only
+//! solid is the sphere; decomposing a box into six polygons would turn a
+//! solid into surfaces, which changes refraction and CSG meaning, so we do
+//! not pretend), transforms other than similarities of spheres, cylinders
+//! and cones (a scaled sphere is no NFF sphere; polygons take any affine
+//! map), materials whose `ambient` is not 0.1 or whose `reflect` differs
+//! from `specular` (NFF's `Ks` is both), a global `ambient` other than
+//! white and a `max_depth` other than 5 (what the importer sets).
 
 use std::path::Path;
 
+use std::fmt::Write as _;
+
 use super::model::{Camera, Light, Material, Node, SceneFile, Vector};
+use crate::geom::{Affine, Vec3};
 use crate::{Error, Result};
 
 /// An imported NFF file: the model, and where its parts came from.
@@ -82,6 +100,30 @@ impl NffScene {
             message,
         }
     }
+}
+
+/// The material of an NFF `f` entity (`f r g b Kd Ks Shine T ior`): `Ks`
+/// is both the Phong and the reflection coefficient, ambient is 0.1.
+/// Generators of SPD scenes use it too, so their models are NFF's.
+pub fn material(color: Vector, kd: f64, ks: f64, shine: f64, t: f64, ior: f64) -> Material {
+    Material {
+        color: Some(color),
+        ambient: Some(0.1),
+        diffuse: Some(kd),
+        specular: Some(ks),
+        shininess: Some(shine),
+        reflect: Some(ks),
+        transmit: Some(t),
+        ior: Some(ior),
+        base: None,
+    }
+}
+
+/// The colour NFF gives each of `n` lights written without one: the SPD's
+/// suggested relative intensity `sqrt(n)/(2n)`, grey.
+pub fn light_grey(n: usize) -> Vector {
+    let n = n.max(1) as f64;
+    [n.sqrt() / (2.0 * n); 3]
 }
 
 /// One word of a line, with its 1-based column.
@@ -221,20 +263,8 @@ impl<'a> Parser<'a> {
                 "f" => {
                     let [r, g, b, kd, ks, shine, t, ior] = self.numbers::<8>(number, head, args)?;
                     let name = format!("f@{number}");
-                    materials.insert(
-                        name.clone(),
-                        Material {
-                            color: Some([r, g, b]),
-                            ambient: Some(0.1),
-                            diffuse: Some(kd),
-                            specular: Some(ks),
-                            shininess: Some(shine),
-                            reflect: Some(ks),
-                            transmit: Some(t),
-                            ior: Some(if t == 0.0 && ior <= 0.0 { 1.0 } else { ior }),
-                            base: None,
-                        },
-                    );
+                    let ior = if t == 0.0 && ior <= 0.0 { 1.0 } else { ior };
+                    materials.insert(name.clone(), material([r, g, b], kd, ks, shine, t, ior));
                     current = Some(name);
                 }
                 "s" => {
@@ -323,14 +353,13 @@ impl<'a> Parser<'a> {
         let Some((camera, view_line)) = camera else {
             return Err(self.error(1, 1, "no view entity `v`: an NFF scene needs one".into()));
         };
-        let n = lights.len().max(1) as f64;
-        let grey = n.sqrt() / (2.0 * n);
+        let grey = light_grey(lights.len());
         let light_lines = lights.iter().map(|l| l.line).collect();
         let lights = lights
             .into_iter()
             .map(|l| Light {
                 position: l.position,
-                color: l.color.unwrap_or([grey; 3]),
+                color: l.color.unwrap_or(grey),
             })
             .collect();
         Ok(NffScene {
@@ -429,15 +458,7 @@ impl<'a> Parser<'a> {
             ));
         }
         let (width, height) = resolution.unwrap_or((512, 512));
-        // NFF's angle spans the centres of the outer rows; `fov_y` their edges.
-        let fov_y = if height > 1 {
-            let h = f64::from(height);
-            2.0 * ((angle.to_radians() / 2.0).tan() * h / (h - 1.0))
-                .atan()
-                .to_degrees()
-        } else {
-            angle
-        };
+        let fov_y = fov_y_of_angle(angle, height);
         Ok(Camera {
             eye: from,
             look_at: at,
@@ -506,5 +527,436 @@ impl<'a> Parser<'a> {
             *o = self.number(number, *w)?;
         }
         Ok(out)
+    }
+}
+
+// ---------------------------------------------------------------------------
+// Export.
+
+/// The shortest decimal text that parses back to exactly `x` (Rust's `{:?}`
+/// for non-integers, which uses an exponent only for very large or small
+/// magnitudes), with integers written without a fraction. Both NFF readers
+/// (`strtod`) and POV-Ray read every form it produces.
+pub(crate) fn number(x: f64) -> String {
+    if x == 0.0 {
+        // Also turns -0 into 0: no reader needs the sign of zero.
+        "0".into()
+    } else if x.fract() == 0.0 && x.abs() < 1e15 {
+        format!("{}", x as i64)
+    } else {
+        format!("{x:?}")
+    }
+}
+
+/// `x y z` for NFF.
+fn triple(v: Vector) -> String {
+    format!("{} {} {}", number(v[0]), number(v[1]), number(v[2]))
+}
+
+/// The vertical field of view (degrees, between the image's edges) of NFF's
+/// view `angle` over `height` pixel rows (between the centres of the outer
+/// rows): `tan(fov_y/2) = tan(angle/2)·h/(h−1)`.
+pub fn fov_y_of_angle(angle: f64, height: u32) -> f64 {
+    if height > 1 {
+        let h = f64::from(height);
+        2.0 * ((angle.to_radians() / 2.0).tan() * h / (h - 1.0))
+            .atan()
+            .to_degrees()
+    } else {
+        angle
+    }
+}
+
+/// NFF's view angle for a vertical field of view of `fov_y` degrees over
+/// `height` pixel rows: the inverse of `fov_y_of_angle`.
+fn nff_angle(fov_y: f64, height: u32) -> f64 {
+    if height > 1 {
+        let h = f64::from(height);
+        2.0 * ((fov_y.to_radians() / 2.0).tan() * (h - 1.0) / h)
+            .atan()
+            .to_degrees()
+    } else {
+        fov_y
+    }
+}
+
+/// Writes `model` as NFF, or refuses with an `Error::Invalid` naming the
+/// node or field NFF cannot express (see the module docs); `source` names
+/// the scene in messages. The model is validated first, so a written file
+/// always loads.
+pub fn write_nff(model: &SceneFile, source: &Path) -> Result<String> {
+    // Flattening walks the tree once per level: on the loading thread's
+    // large stack, like every other walk of a model.
+    super::load::on_load_stack(|| {
+        let (scene, _) = super::load::compile(model, source)?;
+        let mut w = NffWriter {
+            source,
+            scene: &scene,
+            out: String::new(),
+            current: None,
+        };
+        w.scene(model)?;
+        Ok(w.out)
+    })?
+}
+
+struct NffWriter<'a> {
+    source: &'a Path,
+    /// The compiled model, for its resolved materials (`base` chains).
+    scene: &'a super::Scene,
+    out: String,
+    /// The index (in `scene.materials`) of the last `f` written.
+    current: Option<usize>,
+}
+
+impl NffWriter<'_> {
+    fn refuse(&self, path: String, message: String) -> Error {
+        Error::invalid(self.source, path, message)
+    }
+
+    fn scene(&mut self, model: &SceneFile) -> Result<()> {
+        let c = &model.camera;
+        let distance = (Vec3::from_array(c.look_at) - Vec3::from_array(c.eye)).length();
+        // Writing to a String cannot fail (here and below).
+        let _ = writeln!(
+            self.out,
+            "# Written by hypercast from {}\nv\nfrom {}\nat {}\nup {}\nangle {}\n\
+             hither {}\nresolution {} {}",
+            self.source.display(),
+            triple(c.eye),
+            triple(c.look_at),
+            triple(c.up),
+            number(nff_angle(c.fov_y, c.height)),
+            // Ignored by ray tracers (and by our importer); hidden-surface
+            // renderers want a near plane in front of everything.
+            number(distance * 1e-3),
+            c.width,
+            c.height
+        );
+        let _ = writeln!(self.out, "b {}", triple(model.background));
+        for l in &model.lights {
+            let _ = writeln!(self.out, "l {} {}", triple(l.position), triple(l.color));
+        }
+        for (i, node) in model.objects.iter().enumerate() {
+            self.node(node, format!("objects[{i}]"), None, &Affine::IDENTITY)?;
+        }
+        // After the objects, whose refusals name a node: more telling.
+        if model.ambient != [1.0; 3] {
+            return Err(self.refuse(
+                "ambient".into(),
+                format!(
+                    "NFF has no global ambient light (its scenes have white), this scene has {}",
+                    triple(model.ambient)
+                ),
+            ));
+        }
+        if model.max_depth != 5 {
+            return Err(self.refuse(
+                "max_depth".into(),
+                format!(
+                    "NFF has no recursion limit (its scenes get 5), this scene has {}",
+                    model.max_depth
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Writes `node` (at `path`) with the material it inherits and the
+    /// composed transforms above it.
+    fn node(
+        &mut self,
+        node: &Node,
+        path: String,
+        inherited: Option<&str>,
+        to_world: &Affine,
+    ) -> Result<()> {
+        let material = node.material().or(inherited);
+        let kind = node.kind();
+        let similarity = || {
+            to_world.similarity_scale().ok_or_else(|| {
+                self.refuse(
+                    path.clone(),
+                    format!(
+                        "a {kind} under a non-uniform scale is no NFF {kind} (NFF has no \
+                         transforms; only rotations, translations and uniform scales can be \
+                         applied to it)"
+                    ),
+                )
+            })
+        };
+        match node {
+            Node::Union { children, .. } | Node::Assembly { children, .. } => {
+                for (i, child) in children.iter().enumerate() {
+                    let p = format!("{path}.{kind}.children[{i}]");
+                    self.node(child, p, material, to_world)?;
+                }
+            }
+            Node::Transform {
+                translate,
+                rotate,
+                scale,
+                child,
+                ..
+            } => {
+                let m = Affine::from_srt(
+                    Vec3::from_array(*scale),
+                    Vec3::from_array(*rotate),
+                    Vec3::from_array(*translate),
+                );
+                let p = format!("{path}.Transform.child");
+                self.node(child, p, material, &to_world.then_inner(&m))?;
+            }
+            Node::Intersection { .. } | Node::Difference { .. } => {
+                return Err(self.refuse(
+                    path,
+                    format!(
+                        "NFF has no CSG: a {kind} cannot be written (NFF's object list is a \
+                         union; write .ron, .json or .pov instead)"
+                    ),
+                ));
+            }
+            Node::Box { .. } => {
+                return Err(self.refuse(
+                    path,
+                    "NFF has no box (its only solid is the sphere; six polygons would be \
+                     surfaces, not a solid): write .ron, .json or .pov instead"
+                        .into(),
+                ));
+            }
+            Node::Cylinder { capped: true, .. } | Node::Cone { capped: true, .. } => {
+                return Err(self.refuse(
+                    path,
+                    format!(
+                        "NFF's cylinders and cones are open: a capped {kind} cannot be written \
+                         (set `capped: false`, or write .ron, .json or .pov)"
+                    ),
+                ));
+            }
+            Node::Sphere { center, radius, .. } => {
+                let s = similarity()?;
+                self.material(material, &path)?;
+                let c = to_world.point(Vec3::from_array(*center)).to_array();
+                let _ = writeln!(self.out, "s {} {}", triple(c), number(radius * s));
+            }
+            Node::Cylinder {
+                base, top, radius, ..
+            } => {
+                let s = similarity()?;
+                self.material(material, &path)?;
+                self.cone(to_world, *base, radius * s, *top, radius * s);
+            }
+            Node::Cone {
+                base,
+                base_radius,
+                top,
+                top_radius,
+                ..
+            } => {
+                let s = similarity()?;
+                self.material(material, &path)?;
+                self.cone(to_world, *base, base_radius * s, *top, top_radius * s);
+            }
+            Node::Triangle { a, b, c, .. } => {
+                self.material(material, &path)?;
+                self.polygon(to_world, &[*a, *b, *c]);
+            }
+            Node::Polygon { vertices, .. } => {
+                self.material(material, &path)?;
+                self.polygon(to_world, vertices);
+            }
+        }
+        Ok(())
+    }
+
+    fn cone(&mut self, to_world: &Affine, base: Vector, r0: f64, top: Vector, r1: f64) {
+        let b = to_world.point(Vec3::from_array(base)).to_array();
+        let t = to_world.point(Vec3::from_array(top)).to_array();
+        let _ = writeln!(
+            self.out,
+            "c\n{} {}\n{} {}",
+            triple(b),
+            number(r0),
+            triple(t),
+            number(r1)
+        );
+    }
+
+    fn polygon(&mut self, to_world: &Affine, vertices: &[Vector]) {
+        let _ = writeln!(self.out, "p {}", vertices.len());
+        for v in vertices {
+            let w = to_world.point(Vec3::from_array(*v)).to_array();
+            let _ = writeln!(self.out, "{}", triple(w));
+        }
+    }
+
+    /// Writes an `f` line when the material (`name`, None for the default)
+    /// differs from the last one written, or refuses one NFF cannot hold.
+    fn material(&mut self, name: Option<&str>, path: &str) -> Result<()> {
+        let names = &self.scene.material_names;
+        // The model was compiled, so every name is known; the default is 0.
+        let id = name
+            .and_then(|n| names.iter().position(|m| m == n))
+            .unwrap_or(0);
+        if self.current == Some(id) {
+            return Ok(());
+        }
+        let m = &self.scene.materials[id];
+        let at = match name {
+            Some(n) => format!("materials[{n:?}]"),
+            None => format!("{path} (the default material)"),
+        };
+        if m.ambient != 0.1 {
+            return Err(self.refuse(
+                at,
+                format!(
+                    "NFF materials have ambient 0.1, this one has {}",
+                    number(m.ambient)
+                ),
+            ));
+        }
+        if m.reflect != m.specular {
+            return Err(self.refuse(
+                at,
+                format!(
+                    "NFF's Ks is both the Phong and the reflection coefficient, this material \
+                     has specular {} and reflect {}",
+                    number(m.specular),
+                    number(m.reflect)
+                ),
+            ));
+        }
+        let _ = writeln!(
+            self.out,
+            "f {} {} {} {} {} {}",
+            triple(m.color.to_array()),
+            number(m.diffuse),
+            number(m.specular),
+            number(m.shininess),
+            number(m.transmit),
+            number(m.ior)
+        );
+        self.current = Some(id);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::SceneSyntax;
+    use crate::scene::load::{compile_model, parse_model_str};
+
+    const CAMERA: &str =
+        "camera: (eye: (0, -10, 2), look_at: (0, 0, 0), fov_y: 40, width: 64, height: 48)";
+
+    fn model(objects: &str) -> SceneFile {
+        let text = format!(
+            "({CAMERA}, materials: {{\"m\": (specular: 0.3, reflect: 0.3)}}, objects: [{objects}])"
+        );
+        parse_model_str(&text, SceneSyntax::Ron, Path::new("t.ron")).unwrap()
+    }
+
+    /// The refusal's `path: message`.
+    fn refusal(objects: &str) -> String {
+        match write_nff(&model(objects), Path::new("t.ron")) {
+            Err(Error::Invalid { path, message, .. }) => format!("{path}: {message}"),
+            other => panic!("expected a refusal, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn written_nff_reads_back_as_the_same_scene() {
+        let m = crate::r#gen::sphereflake::sphereflake(1);
+        let text = write_nff(&m, Path::new("flake")).unwrap();
+        let back = parse_nff(&text, Path::new("flake.nff")).unwrap().model;
+        let (a, _) = compile_model(&m, Path::new("a")).unwrap();
+        let (b, _) = compile_model(&back, Path::new("b")).unwrap();
+        // Material numbers follow names, which NFF does not keep: compare
+        // shapes and the materials themselves.
+        assert_eq!(a.primitives.len(), b.primitives.len());
+        for (p, q) in a.primitives.iter().zip(&b.primitives) {
+            assert_eq!(p.shape, q.shape);
+            assert_eq!(a.material(p.material), b.material(q.material));
+        }
+        assert_eq!(a.lights, b.lights);
+        assert_eq!(a.background, b.background);
+        assert!((a.camera.fov_y - b.camera.fov_y).abs() < 1e-12);
+        assert_eq!(
+            (a.camera.eye, a.camera.width, a.camera.height),
+            (b.camera.eye, b.camera.width, b.camera.height)
+        );
+    }
+
+    #[test]
+    fn unions_flatten_and_similarities_are_baked() {
+        let text = write_nff(
+            &model(
+                "Union(material: \"m\", children: [Transform(translate: (1, 0, 0), scale: (2, 2, 2),
+                    rotate: (0, 0, 90), child: Assembly(children: [Sphere(center: (1, 0, 0), radius: 0.5),
+                    Cylinder(base: (0, 0, 0), top: (0, 0, 1), radius: 0.25, capped: false)]))])",
+            ),
+            Path::new("t.ron"),
+        )
+        .unwrap();
+        let body: Vec<&str> = text.lines().skip_while(|l| !l.starts_with("f ")).collect();
+        // Rotating (1, 0, 0) by 90° about z gives (0, 1, 0), to within a
+        // last bit of cos 90°.
+        assert_eq!(body[0], "f 1 1 1 0.7 0.3 20 0 1");
+        let s: Vec<f64> = body[1][2..]
+            .split(' ')
+            .map(|w| w.parse().unwrap())
+            .collect();
+        assert!((s[0] - 1.0).abs() < 1e-12 && (s[1] - 2.0).abs() < 1e-12 && s[2] == 0.0);
+        assert_eq!(s[3], 1.0);
+        assert_eq!(&body[2..], ["c", "1 0 0 0.5", "1 0 2 0.5"]);
+    }
+
+    #[test]
+    fn what_nff_cannot_say_is_refused_by_name() {
+        let e = refusal(
+            "Union(children: [Difference(children: [Sphere(center: (0, 0, 0), radius: 1),
+                Sphere(center: (1, 0, 0), radius: 1)])])",
+        );
+        assert!(
+            e.starts_with("objects[0].Union.children[0]: NFF has no CSG: a Difference"),
+            "{e}"
+        );
+        assert!(
+            refusal("Box(min: (0, 0, 0), max: (1, 1, 1))")
+                .starts_with("objects[0]: NFF has no box")
+        );
+        assert!(
+            refusal("Cylinder(base: (0, 0, 0), top: (0, 0, 1), radius: 1)")
+                .contains("capped Cylinder")
+        );
+        assert!(
+            refusal("Transform(scale: (1, 2, 1), child: Sphere(center: (0, 0, 0), radius: 1))")
+                .starts_with("objects[0].Transform.child: a Sphere under a non-uniform scale")
+        );
+        let text = format!(
+            "({CAMERA}, materials: {{\"gold\": (specular: 0.6, reflect: 0.1)}},
+              objects: [Sphere(center: (0, 0, 0), radius: 1, material: \"gold\")])"
+        );
+        let m = parse_model_str(&text, SceneSyntax::Ron, Path::new("t.ron")).unwrap();
+        let e = write_nff(&m, Path::new("t.ron")).unwrap_err().to_string();
+        assert!(e.contains("materials[\"gold\"]: NFF's Ks is both"), "{e}");
+        let mut m = model("Sphere(center: (0, 0, 0), radius: 1)");
+        m.ambient = [0.5; 3];
+        let e = write_nff(&m, Path::new("t.ron")).unwrap_err().to_string();
+        assert!(
+            e.contains("t.ron: ambient: NFF has no global ambient"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn numbers_are_short_and_exact() {
+        for x in [0.1, 1.0 / 3.0, -2.5, 1e-7, 123456.0, 1e300, -0.0] {
+            let s = number(x);
+            assert_eq!(s.parse::<f64>().unwrap(), x, "{s}");
+        }
+        assert_eq!(number(3.0), "3");
+        assert_eq!(number(-0.0), "0");
     }
 }

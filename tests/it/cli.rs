@@ -10,7 +10,7 @@ const BIN: &str = env!("CARGO_BIN_EXE_hypercast");
 
 /// Runs `hypercast` in `dir` (a fresh temporary folder, so "no file left"
 /// is checkable), with the environment that would make a panic talk.
-pub fn run(dir: &Path, args: &[&str]) -> Output {
+pub(crate) fn run(dir: &Path, args: &[&str]) -> Output {
     Command::new(BIN)
         .args(args)
         .current_dir(dir)
@@ -19,11 +19,11 @@ pub fn run(dir: &Path, args: &[&str]) -> Output {
         .expect("the binary runs")
 }
 
-pub fn stderr(o: &Output) -> String {
+pub(crate) fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
-pub fn files_in(dir: &Path) -> Vec<PathBuf> {
+pub(crate) fn files_in(dir: &Path) -> Vec<PathBuf> {
     let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
         .unwrap()
         .map(|e| e.unwrap().path())
@@ -32,13 +32,13 @@ pub fn files_in(dir: &Path) -> Vec<PathBuf> {
     v
 }
 
-pub fn path_str(p: &Path) -> &str {
+pub(crate) fn path_str(p: &Path) -> &str {
     p.to_str().expect("UTF-8 path")
 }
 
 /// What every refusal must look like: exit 2, one line on stderr naming
 /// the problem, no panic, nothing written. Returns the problems found.
-pub fn check_refusal(dir: &Path, args: &[&str], expected: &str) -> Vec<String> {
+pub(crate) fn check_refusal(dir: &Path, args: &[&str], expected: &str) -> Vec<String> {
     let o = run(dir, args);
     let err = stderr(&o);
     let mut problems = Vec::new();
