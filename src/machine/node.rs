@@ -81,7 +81,9 @@ pub type NodeError = String;
 /// Runs node `id` on its links until the host says stop. Errors are
 /// reported to the host by the caller.
 pub fn run(id: u16, links: &mut dyn NodeLinks) -> Result<(), NodeError> {
-    // The load message first: nothing else can come before it.
+    // The load message first. Neighbours loaded earlier may already send
+    // rays: those wait, as bytes, until the node knows its share.
+    let mut early = Vec::new();
     let (share, arrival) = loop {
         match links
             .try_recv()
@@ -95,6 +97,7 @@ pub fn run(id: u16, links: &mut dyn NodeLinks) -> Result<(), NodeError> {
                         break (share, t);
                     }
                     ToNode::Stop => return Ok(()),
+                    ToNode::Rays(_) => early.push(bytes),
                     _ => return Err("a message before the load message".into()),
                 }
             }
@@ -103,6 +106,9 @@ pub fn run(id: u16, links: &mut dyn NodeLinks) -> Result<(), NodeError> {
     };
     let share = *share;
     let mut node = Node::new(id, &share, links, arrival)?;
+    for bytes in early {
+        node.handle(bytes)?;
+    }
     node.run()
 }
 
@@ -292,6 +298,14 @@ impl<'a> Node<'a> {
             .links
             .try_recv()
             .map_err(|c| format!("link {:?} closed", c.0))?
+        {
+            self.handle(bytes)?;
+        }
+        Ok(())
+    }
+
+    /// Takes one message.
+    fn handle(&mut self, bytes: Vec<u8>) -> Result<(), NodeError> {
         {
             let t0 = cpu_seconds();
             self.hold(bytes.len());

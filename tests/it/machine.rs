@@ -67,3 +67,69 @@ fn every_dimension_gives_the_single_node_image() {
         }
     }
 }
+
+#[test]
+fn a_scene_too_large_for_one_node_is_refused_then_fits_on_32() {
+    // The sphereflake of level 4 (7,382 primitives) needs about 5.2 MiB
+    // whole: more than one iPSC node's 4.5 MiB.
+    let scene = load_scene(&repo("scenes/sphereflake4.nff")).unwrap();
+    let o = MachineOptions::new(48, 48, 1);
+    let e = machine::render(&scene, &topo(0), &o, &|_| {}).expect_err("refused at d = 0");
+    let msg = e.to_string();
+    assert!(matches!(e, hypercast::error::Error::Capacity(_)), "{msg}");
+    assert!(
+        msg.contains("node 0 needs") && msg.contains("budget 4.50 MiB") && msg.contains("--dim"),
+        "{msg}"
+    );
+    assert_eq!(e.exit_code(), 2);
+    let (_, stats, _) = machine::render(&scene, &topo(5), &o, &|_| {}).expect("fits at d = 5");
+    check_stats(&stats);
+}
+
+#[test]
+fn random_scenes_on_random_dimensions_equal_one_node() {
+    use hypercast::r#gen::random::{RandomCsgOptions, random_csg};
+    for seed in 0..6u64 {
+        let model = random_csg(seed, 12 + seed as usize * 5, &RandomCsgOptions::default());
+        let (scene, _) =
+            hypercast::scene::load::compile_model(&model, std::path::Path::new("random.ron"))
+                .unwrap_or_else(|e| panic!("seed {seed}: {e}"));
+        let d = ((seed * 5 + 1) % 7) as u32;
+        let (w, h) = (32, 24);
+        let (one, _) = cells(&scene, w, h);
+        let (film, stats) = machine(&scene, d, w, h, 1 + seed as usize % 3);
+        check_stats(&stats);
+        assert_eq!(film.sums(), one.sums(), "seed {seed}, d = {d}");
+    }
+}
+
+#[test]
+fn a_failing_node_ends_the_run_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.png");
+    let start = std::time::Instant::now();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_hypercast"))
+        .args([
+            "render",
+            repo("scenes/jagged_ball.ron").to_str().unwrap(),
+            "--dim",
+            "3",
+        ])
+        .args([
+            "--width",
+            "64",
+            "--height",
+            "48",
+            "--inject-fault",
+            "5:3",
+            "-o",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("node 5 failed"), "{err}");
+    assert!(!out.exists(), "no output after a failure");
+    assert!(start.elapsed().as_secs() < 10, "took {:?}", start.elapsed());
+}
