@@ -80,7 +80,11 @@ pub type NodeError = String;
 /// Runs node `id` on its links until the host says stop. Errors are
 /// reported to the host by the caller.
 pub fn run(id: u16, links: &mut dyn NodeLinks) -> Result<(), NodeError> {
-    // The load message first: nothing else can come before it.
+    // The load message first. Neighbours loaded before this node may
+    // already send it rays (the host loads nodes one after another, and
+    // links between nodes do not wait for the host's): those are kept, in
+    // order, and taken first once loaded.
+    let mut early = VecDeque::new();
     let (share, arrival) = loop {
         match links
             .try_recv()
@@ -94,7 +98,7 @@ pub fn run(id: u16, links: &mut dyn NodeLinks) -> Result<(), NodeError> {
                         break (share, t);
                     }
                     ToNode::Stop => return Ok(()),
-                    _ => return Err("a message before the load message".into()),
+                    ToNode::Rays(_) | ToNode::Credit(_) => early.push_back(bytes),
                 }
             }
             None => links.wait(&[]),
@@ -102,6 +106,7 @@ pub fn run(id: u16, links: &mut dyn NodeLinks) -> Result<(), NodeError> {
     };
     let share = *share;
     let mut node = Node::new(id, &share, links, arrival)?;
+    node.early = early;
     node.run()
 }
 
@@ -128,6 +133,9 @@ struct Node<'a> {
     clock: f64,
     model: LinkModel,
     paths_processed: u64,
+    /// Messages from neighbours that came before the load message, taken
+    /// before any other.
+    early: VecDeque<Vec<u8>>,
 }
 
 impl<'a> Node<'a> {
@@ -180,6 +188,7 @@ impl<'a> Node<'a> {
             clock,
             model: share.link,
             paths_processed: 0,
+            early: VecDeque::new(),
         })
     }
 
@@ -254,11 +263,18 @@ impl<'a> Node<'a> {
 
     /// Takes every message offered now.
     fn receive_all(&mut self) -> Result<(), NodeError> {
-        while let Some(bytes) = self
-            .links
-            .try_recv()
-            .map_err(|c| format!("link {:?} closed", c.0))?
-        {
+        loop {
+            let bytes = match self.early.pop_front() {
+                Some(b) => b,
+                None => match self
+                    .links
+                    .try_recv()
+                    .map_err(|c| format!("link {:?} closed", c.0))?
+                {
+                    Some(b) => b,
+                    None => break,
+                },
+            };
             let t0 = cpu_seconds();
             self.hold(bytes.len());
             let (sent_at, body): (f64, ToNode) = decode_stamped(&bytes)?;
