@@ -370,11 +370,19 @@ impl CellStructure {
 
 /// A leaf of a cell's subtree, for the traversal's first look at a cell
 /// (`CellTracer::in_cell`): its node in `CellStructure::subtrees`, its
-/// primitive, and whether it is the subtree's result when it is the only
-/// leaf with anything along the ray (every operator above it is a union or
-/// an assembly, or a difference of which it is in the first operand).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+/// primitive, whether it is the subtree's result when it is the only leaf
+/// with anything along the ray (every operator above it is a union or an
+/// assembly, or a difference of which it is in the first operand), and its
+/// culling box (`CsgTree::cull_bounds` of `node`).
+///
+/// The box is a copy kept beside the leaf so that the first look reads one
+/// contiguous list: most leaves a ray meets in a cell are culled by their
+/// box (sphereflake level 4: 29 slab tests per ray for 2.8 intersection
+/// tests), and reading the box from the arena by `node` was a scattered
+/// load per leaf.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SubtreeLeaf {
+    pub cull: Aabb,
     pub node: u32,
     pub prim: u32,
     pub lone_is_result: bool,
@@ -397,6 +405,7 @@ fn subtree_leaf_lists(
         while let Some((n, passes)) = stack.pop() {
             match tree.nodes[n.index()] {
                 CsgNode::Leaf(p) => out.push(SubtreeLeaf {
+                    cull: tree.cull_bounds[n.index()],
                     node: n.0,
                     prim: p.0,
                     lone_is_result: passes,

@@ -350,7 +350,7 @@ impl SlabRay {
         (t0 <= t1).then_some((t0, t1))
     }
 
-    #[inline]
+    #[inline(always)]
     fn meets(&self, b: &Aabb) -> bool {
         if self.plain {
             let (x0, x1) = (
@@ -415,6 +415,16 @@ struct Mailbox {
 }
 
 impl Mailbox {
+    /// The mailbox of a primitive that ray `ray` does not cross.
+    #[inline(always)]
+    fn missed(ray: u64) -> Mailbox {
+        Mailbox {
+            ray,
+            lo: f64::INFINITY,
+            hi: f64::NEG_INFINITY,
+        }
+    }
+
     fn of(ray: u64, hits: &PrimHits) -> Mailbox {
         let (lo, hi) = match hits {
             PrimHits::Miss => (f64::INFINITY, f64::NEG_INFINITY),
@@ -500,11 +510,51 @@ impl<'a> CellTracer<'a> {
         let mailboxes = &mut self.mailboxes;
         let all_hits = &mut self.hits;
         counters.subtree_evaluations += 1;
-        // A leaf's crossings in the window, through its mailbox (section
-        // 8); the culling test against its minimal box only when the
-        // mailbox is empty.
+        // First look: the leaves whose crossings reach into the window, by
+        // their mailboxes' extents (section 8), filling the mailboxes of
+        // leaves the ray has not met yet: the culling test against the
+        // leaf's minimal box, and the intersection if it passes. None: the
+        // subtree has no boundary there. One: the subtree is that leaf, or
+        // nothing, by the operators above it (see `SubtreeLeaf`). The
+        // evaluator runs only for two or more. (A surface's crossings may
+        // straddle the window without one inside it: then the lone leaf
+        // gives nothing, or the evaluator runs for nothing; both exact.)
+        let [a, b] = cs.leaf_span[subtree as usize];
+        let mut lone: Option<&SubtreeLeaf> = None;
+        let mut several = false;
+        for l in &cs.subtree_leaves[a as usize..b as usize] {
+            let p = l.prim as usize;
+            let mb = &mut mailboxes[p];
+            self.eval_counts.nodes_visited += 1;
+            if mb.ray == id {
+                counters.mailbox_hits += 1;
+            } else if slab.meets(&l.cull) {
+                counters.intersection_tests += 1;
+                let hits = prims[p].intersect(ray);
+                *mb = Mailbox::of(id, &hits);
+                all_hits[p] = hits;
+            } else {
+                self.eval_counts.nodes_culled += 1;
+                *mb = Mailbox::missed(id);
+            }
+            if mb.hi >= t_lo && mb.lo <= t_end {
+                if lone.is_some() {
+                    several = true;
+                    break;
+                }
+                lone = Some(l);
+            }
+        }
+        if !several {
+            let l = lone.filter(|l| l.lone_is_result)?;
+            let p = l.prim as usize;
+            return first_crossing(&all_hits[p], PrimId(l.prim), t_lo, t_end);
+        }
+        // A leaf's crossings in the window, through its mailbox; the
+        // culling test against its minimal box only when the mailbox is
+        // empty.
         let eval_counts = &mut self.eval_counts;
-        let mut leaf = |n: NodeId, p: PrimId| -> PrimHits {
+        let leaf = |n: NodeId, p: PrimId| -> PrimHits {
             let mb = &mut mailboxes[p.index()];
             eval_counts.nodes_visited += 1;
             if mb.ray == id {
@@ -528,28 +578,6 @@ impl<'a> CellTracer<'a> {
                 window(&all_hits[p.index()], t_lo, t_end)
             }
         };
-        // First look: the leaves with anything in the window. None: the
-        // subtree has no boundary there. One: the subtree is that leaf,
-        // or nothing, by the operators above it (see `SubtreeLeaf`). The
-        // evaluator runs only for two or more.
-        let [a, b] = cs.leaf_span[subtree as usize];
-        let mut lone: Option<(PrimHits, &SubtreeLeaf)> = None;
-        let mut several = false;
-        for l in &cs.subtree_leaves[a as usize..b as usize] {
-            let h = leaf(NodeId(l.node), PrimId(l.prim));
-            if !matches!(h, PrimHits::Miss) {
-                if lone.is_some() {
-                    several = true;
-                    break;
-                }
-                lone = Some((h, l));
-            }
-        }
-        if !several {
-            return lone
-                .filter(|(_, l)| l.lone_is_result)
-                .and_then(|(h, l)| first_crossing(&h, PrimId(l.prim), t_lo, t_end));
-        }
         let origin = &cs.origin;
         let (op_ray, op_culled) = (&mut self.op_ray, &mut self.op_culled);
         self.eval
