@@ -505,7 +505,16 @@ struct DepthCost {
 }
 
 /// Share of rays that cross every cell of a super cell (primary rays).
-const DEPTH_ALL: f64 = 0.5;
+///
+/// Primary rays are about a fifth of all rays (sphereflake level 4: 1
+/// primary, 3.7 shadow and 0.7 reflected rays per pixel) and stop at their
+/// first hit, so few of them cross a super cell's cells front to back; the
+/// rest cross cells sideways, in proportion to their thickness. Measured
+/// in instructions of the walk (callgrind, one ray in 4 per axis), 0.5 →
+/// 0.1 removes 16% on the sphereflake (leaves looked at per ray 38 → 25),
+/// 13% on jagged_ball and 11% on house; 0.05 gains 1-4% more for more
+/// cells and build time.
+const DEPTH_ALL: f64 = 0.1;
 /// Cost of a step between cells, against 1 per primitive.
 const DEPTH_STEP: f64 = 1.0;
 
