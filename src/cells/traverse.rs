@@ -23,6 +23,10 @@ use crate::render::TraceCounters;
 use crate::scene::Scene;
 use crate::trace::{Hit, Tracer};
 
+/// The face through which a ray leaves a cell: 0 and 1 the side faces
+/// across screen x and y, 2 a depth face, 3 none (the ray does not leave).
+type Face = usize;
+
 /// A cell of one region.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct CellRef {
@@ -117,22 +121,43 @@ impl RegionCells {
     /// `t_in`), and the super cell and cell it enters there, if any.
     #[inline]
     fn exit(&self, rr: &RegionRay, s: u32, k: u32, t_in: f64) -> (f64, Option<(u32, u32)>) {
+        let (t_out, face) = self.leave(rr, s, k, t_in);
+        (t_out, self.enter_next(rr, s, k, t_out, face))
+    }
+
+    /// Where the ray leaves cell `k` of super cell `s` (never before
+    /// `t_in`), and through which face (see `exit_in`).
+    #[inline]
+    fn leave(&self, rr: &RegionRay, s: u32, k: u32, t_in: f64) -> (f64, Face) {
         match rr.region {
             Region::Front => self.exit_in::<true>(rr, s, k, t_in),
             Region::Back => self.exit_in::<false>(rr, s, k, t_in),
         }
     }
 
-    /// `exit` for one region (`FRONT` or not), with the crossings of
-    /// `CamRay::cross_side` and `CamRay::cross_depth` written out.
-    #[inline(always)]
-    fn exit_in<const FRONT: bool>(
+    /// The super cell and cell the ray enters when it leaves cell `k` of
+    /// super cell `s` at `t_out` through `face`, if any. Apart from
+    /// `leave`, so that the walk finds the next cell only when it needs
+    /// it: not after the cell where the ray's boundary is.
+    #[inline]
+    fn enter_next(
         &self,
         rr: &RegionRay,
         s: u32,
         k: u32,
-        t_in: f64,
-    ) -> (f64, Option<(u32, u32)>) {
+        t_out: f64,
+        face: Face,
+    ) -> Option<(u32, u32)> {
+        match rr.region {
+            Region::Front => self.next_in::<true>(rr, s, k, t_out, face),
+            Region::Back => self.next_in::<false>(rr, s, k, t_out, face),
+        }
+    }
+
+    /// `leave` for one region (`FRONT` or not), with the crossings of
+    /// `CamRay::cross_side` and `CamRay::cross_depth` written out.
+    #[inline(always)]
+    fn exit_in<const FRONT: bool>(&self, rr: &RegionRay, s: u32, k: u32, t_in: f64) -> (f64, Face) {
         let rect = &self.supers[s as usize].rect;
         let cell = &self.cells[k as usize];
         let (o, d) = (rr.cam.o, rr.cam.d);
@@ -181,7 +206,22 @@ impl RegionCells {
         }
         // The entry t never decreases from cell to cell.
         let t_out = if t_out < t_in { t_in } else { t_out };
-        let next = match face {
+        (t_out, face)
+    }
+
+    /// `enter_next` for one region.
+    #[inline(always)]
+    fn next_in<const FRONT: bool>(
+        &self,
+        rr: &RegionRay,
+        s: u32,
+        k: u32,
+        t_out: f64,
+        face: Face,
+    ) -> Option<(u32, u32)> {
+        let cell = &self.cells[k as usize];
+        let (o, d) = (rr.cam.o, rr.cam.d);
+        match face {
             3 => None,
             2 => {
                 // Front and back pointers: the neighbours in depth order.
@@ -207,8 +247,7 @@ impl RegionCells {
                 };
                 self.side_neighbour(rr, s, axis, rr.m[axis] > 0.0, q, z, cell.zlo, cell.zhi)
             }
-        };
-        (t_out, next)
+        }
     }
 
     /// Figure 13: the neighbour across a side face. Start from the corner
@@ -811,7 +850,7 @@ impl CellTracer<'_> {
                         t_in,
                     });
                 }
-                let (t_out, next) = rc.exit(&rr, s, k, t_in);
+                let (t_out, face) = rc.leave(&rr, s, k, t_in);
                 self.counters.cells_visited += 1;
                 let t_end = t_out.min(hi);
                 let tests = self.counters.intersection_tests;
@@ -828,8 +867,11 @@ impl CellTracer<'_> {
                     self.hint[region as usize] = s;
                     return Walk::Hit(h);
                 }
-                match next {
-                    Some((s2, k2)) if t_out < hi => {
+                if !(t_out < hi) {
+                    break;
+                }
+                match rc.enter_next(&rr, s, k, t_out, face) {
+                    Some((s2, k2)) => {
                         s = s2;
                         k = k2;
                         t_in = t_out;
