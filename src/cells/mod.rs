@@ -512,11 +512,12 @@ struct DepthCost {
 /// rest cross cells sideways, in proportion to their thickness. Measured
 /// in instructions of the walk (callgrind, one ray in 4 per axis), 0.5 →
 /// 0.1 removes 16% on the sphereflake (leaves looked at per ray 38 → 25),
-/// 13% on jagged_ball and 11% on house; 0.05 gains 1-4% more for more
-/// cells and build time.
-const DEPTH_ALL: f64 = 0.1;
-/// Cost of a step between cells, against 1 per primitive.
-const DEPTH_STEP: f64 = 1.0;
+/// 13% on jagged_ball and 11% on house; with the other cost constants
+/// (see `bsp::TRAVERSE`), 0.05.
+const DEPTH_ALL: f64 = 0.05;
+/// Cost of a step between cells, against 1 per primitive (see
+/// `bsp::TRAVERSE`).
+const DEPTH_STEP: f64 = 0.5;
 
 impl DepthCost {
     fn new(extent: f64) -> Self {
