@@ -7,18 +7,18 @@
 //!
 //! Every case renders the whole image with both accelerators, on 2 threads.
 //! Each run is timed in wall seconds and in CPU seconds of the process (all
-//! threads): on a shared machine the wall time of a run depends on what
-//! else runs, its CPU time much less. Cells times are medians of 3 runs
-//! (build included); Roth times are medians of 3 on
-//! the bundled scenes and a single run on the sphereflake, where one run of
-//! Roth takes minutes (every ray meets the 7,382 children of the scene's
-//! top union). That run sits between cells runs, so a change of load on a
-//! shared machine shows in the cells times beside it. (An earlier version
-//! timed a band of 32 rows through the flake with the structure built for
-//! that band: the screen window then covered a sixteenth of the image, so
-//! the cost model left the rest of the plane, where secondary rays go,
-//! hardly subdivided; it measured 12.5x where the whole image gives far
-//! more.)
+//! threads). Neither is steady on a shared machine: other processes take
+//! cores and share caches, and a run of a second (cells) suffers more from
+//! a burst of load than one of minutes (Roth), which averages it. So cells
+//! runs are medians of `CELLS_RUNS` (build included), Roth runs medians of
+//! 3 on the bundled scenes and a single run on the sphereflake, where one
+//! run of Roth takes minutes (every ray meets the 7,382 children of the
+//! scene's top union). Roth's runs sit amid the cells runs. (An earlier
+//! version timed a band of 32 rows through the flake with the structure
+//! built for that band: the screen window then covered a sixteenth of the
+//! image, so the cost model left the rest of the plane, where secondary
+//! rays go, hardly subdivided; it measured 12.5x where the whole image
+//! gives far more.)
 
 use std::path::Path;
 use std::time::Instant;
@@ -26,6 +26,9 @@ use std::time::Instant;
 use hypercast::cells::{CellOptions, CellStructure, CellTracer};
 use hypercast::render::{RenderOptions, RenderStats, render_roth, render_with};
 use hypercast::scene::{Scene, load::compile_model, load_scene};
+
+/// Cells runs per case (cheap, and the noisiest).
+const CELLS_RUNS: usize = 7;
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -125,24 +128,26 @@ fn main() {
         let (mut tc, mut cc, mut tr, mut cr) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         let mut cells_last = None;
         let mut roth_last = None;
-        for i in 0..3 {
+        // Roth's runs in the middle of the cells runs.
+        let first_roth = (CELLS_RUNS - roth_runs) / 2;
+        for i in 0..CELLS_RUNS {
             let (wall, cpu, out) = timed(|| cells(&scene, &o));
             tc.push(wall);
             cc.push(cpu);
             cells_last = Some(out);
-            if i < roth_runs {
+            if (first_roth..first_roth + roth_runs).contains(&i) {
                 let (wall, cpu, (_, rst)) = timed(|| render_roth(&scene, &o, &|_| {}));
                 tr.push(wall);
                 cr.push(cpu);
                 roth_last = Some(rst);
             }
         }
-        let (st, cs) = cells_last.expect("three cells runs");
+        let (st, cs) = cells_last.expect("cells runs");
         let rst = roth_last.expect("a Roth run");
         let (c, r) = (median(tc), median(tr));
         let (c_cpu, r_cpu) = (median(cc), median(cr));
         println!(
-            "| {name} | {} | {}x{} | 3/{roth_runs} | {c:.3} | {r:.3} | {:.1}x | {c_cpu:.3} | {r_cpu:.3} | {:.1}x | {:.2} | {:.2} | {:.4} | {} |",
+            "| {name} | {} | {}x{} | {CELLS_RUNS}/{roth_runs} | {c:.3} | {r:.3} | {:.1}x | {c_cpu:.3} | {r_cpu:.3} | {:.1}x | {:.2} | {:.2} | {:.4} | {} |",
             scene.primitives.len(),
             o.width,
             o.height,
