@@ -867,7 +867,8 @@ impl CellTracer<'_> {
                     self.hint[region as usize] = s;
                     return Walk::Hit(h);
                 }
-                if !(t_out < hi) {
+                // Past the end of the ray's part in the region (or NaN).
+                if t_out.partial_cmp(&hi) != Some(std::cmp::Ordering::Less) {
                     break;
                 }
                 match rc.enter_next(&rr, s, k, t_out, face) {
