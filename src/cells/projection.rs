@@ -289,7 +289,28 @@ impl View {
             Region::Back => [0.0, 0.0, -1.0, 0.0],
         };
         n += 1;
-        let planes = &planes[..n];
+        // Only planes that cut the box clip it: a plane with every corner
+        // inside leaves the box whole (skipping it can only widen the range
+        // by rounding, the safe side), and one with every corner outside
+        // leaves nothing. Most planes of a super cell are of the first kind
+        // for most of its primitives. Sphereflake level 4: instructions in
+        // this function 198M -> 67M, in the whole build 534M -> 404M.
+        let dist = |pl: &[f64; 4], p: &Vec3| pl[0] * p.x + pl[1] * p.y + pl[2] * p.z + pl[3];
+        let mut cutting = 0;
+        for i in 0..n {
+            let inside = corners
+                .iter()
+                .filter(|c| dist(&planes[i], c) >= 0.0)
+                .count();
+            if inside == 0 {
+                return None;
+            }
+            if inside < corners.len() {
+                planes[cutting] = planes[i];
+                cutting += 1;
+            }
+        }
+        let planes = &planes[..cutting];
         let (mut z0, mut z1) = (f64::INFINITY, f64::NEG_INFINITY);
         // Sutherland-Hodgman on each face. The extremes of z over the
         // clipped box are at its vertices: on a face of the box (found
@@ -305,11 +326,10 @@ impl View {
                 a[k] = corners[i];
             }
             for pl in planes {
-                let dist = |p: &Vec3| pl[0] * p.x + pl[1] * p.y + pl[2] * p.z + pl[3];
                 let mut out = 0;
                 for k in 0..len {
                     let (p, q) = (a[k], a[(k + 1) % len]);
-                    let (dp, dq) = (dist(&p), dist(&q));
+                    let (dp, dq) = (dist(pl, &p), dist(pl, &q));
                     if dp >= 0.0 {
                         b[out] = p;
                         out += 1;

@@ -109,7 +109,7 @@ impl CellStructure {
                         |l| SubtreeLeaf {
                             node: new_id[l.node as usize],
                             prim: prims[&l.prim],
-                            lone_is_result: l.lone_is_result,
+                            ..*l
                         },
                     ));
                     leaf_span[root as usize] = [start, subtree_leaves.len() as u32];

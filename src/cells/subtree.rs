@@ -22,6 +22,11 @@ pub struct SubtreeBuilder<'a> {
     /// Per node of `tree`, its minimal box (Algorithm 1), for culling.
     minimal: &'a [Aabb],
     parent: Vec<u32>,
+    /// Per node, its place among its parent's children.
+    place: Vec<u32>,
+    /// Per operator, the (place, result) of its children visited for the
+    /// current cell, filled bottom-up.
+    visited: Vec<Vec<(u32, u32)>>,
     /// Per primitive, its leaf node.
     leaf_of: Vec<u32>,
     stamp: Vec<u32>,
@@ -33,13 +38,15 @@ pub struct SubtreeBuilder<'a> {
 impl<'a> SubtreeBuilder<'a> {
     pub fn new(tree: &'a CsgTree, minimal: &'a [Aabb], primitives: usize) -> Self {
         let mut parent = vec![NONE; tree.nodes.len()];
+        let mut place = vec![0; tree.nodes.len()];
         let mut leaf_of = vec![NONE; primitives];
         for (i, n) in tree.nodes.iter().enumerate() {
             match n {
                 CsgNode::Leaf(p) => leaf_of[p.index()] = i as u32,
                 CsgNode::Op { .. } => {
-                    for c in tree.children_of(NodeId(i as u32)) {
+                    for (k, c) in tree.children_of(NodeId(i as u32)).iter().enumerate() {
                         parent[c.index()] = i as u32;
+                        place[c.index()] = k as u32;
                     }
                 }
             }
@@ -48,6 +55,8 @@ impl<'a> SubtreeBuilder<'a> {
             tree,
             minimal,
             parent,
+            place,
+            visited: vec![Vec::new(); tree.nodes.len()],
             leaf_of,
             stamp: vec![0; tree.nodes.len()],
             generation: 0,
@@ -91,18 +100,16 @@ impl<'a> SubtreeBuilder<'a> {
                     arena.leaf_with_bounds(PrimId(p.0), bounds).0
                 }
                 CsgNode::Op { op, .. } => {
+                    // Only the children visited for this cell can be
+                    // present (a flat union of thousands of primitives
+                    // would otherwise cost every cell all its children).
                     kids.clear();
-                    let mut any_empty = false;
-                    let mut first_empty = false;
-                    for (i, c) in self.tree.children_of(NodeId(n)).iter().enumerate() {
-                        let present = self.stamp[c.index()] == g && self.result[c.index()] != NONE;
-                        if present {
-                            kids.push(NodeId(self.result[c.index()]));
-                        } else {
-                            any_empty = true;
-                            first_empty |= i == 0;
-                        }
-                    }
+                    let visited = &mut self.visited[n as usize];
+                    visited.sort_unstable();
+                    kids.extend(visited.iter().filter(|v| v.1 != NONE).map(|v| NodeId(v.1)));
+                    let first_empty = !visited.first().is_some_and(|v| v.0 == 0 && v.1 != NONE);
+                    let any_empty = kids.len() < self.tree.children_of(NodeId(n)).len();
+                    visited.clear();
                     let emptied = match op {
                         Op::Intersection => any_empty,
                         Op::Difference => first_empty,
@@ -119,6 +126,10 @@ impl<'a> SubtreeBuilder<'a> {
                 }
             };
             self.result[n as usize] = r;
+            let p = self.parent[n as usize];
+            if p != NONE {
+                self.visited[p as usize].push((self.place[n as usize], r));
+            }
         }
         let r = if self.stamp[root.index()] == g {
             self.result[root.index()]

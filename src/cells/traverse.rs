@@ -23,6 +23,10 @@ use crate::render::TraceCounters;
 use crate::scene::Scene;
 use crate::trace::{Hit, Tracer};
 
+/// The face through which a ray leaves a cell: 0 and 1 the side faces
+/// across screen x and y, 2 a depth face, 3 none (the ray does not leave).
+type Face = usize;
+
 /// A cell of one region.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct CellRef {
@@ -117,22 +121,43 @@ impl RegionCells {
     /// `t_in`), and the super cell and cell it enters there, if any.
     #[inline]
     fn exit(&self, rr: &RegionRay, s: u32, k: u32, t_in: f64) -> (f64, Option<(u32, u32)>) {
+        let (t_out, face) = self.leave(rr, s, k, t_in);
+        (t_out, self.enter_next(rr, s, k, t_out, face))
+    }
+
+    /// Where the ray leaves cell `k` of super cell `s` (never before
+    /// `t_in`), and through which face (see `exit_in`).
+    #[inline]
+    fn leave(&self, rr: &RegionRay, s: u32, k: u32, t_in: f64) -> (f64, Face) {
         match rr.region {
             Region::Front => self.exit_in::<true>(rr, s, k, t_in),
             Region::Back => self.exit_in::<false>(rr, s, k, t_in),
         }
     }
 
-    /// `exit` for one region (`FRONT` or not), with the crossings of
-    /// `CamRay::cross_side` and `CamRay::cross_depth` written out.
-    #[inline(always)]
-    fn exit_in<const FRONT: bool>(
+    /// The super cell and cell the ray enters when it leaves cell `k` of
+    /// super cell `s` at `t_out` through `face`, if any. Apart from
+    /// `leave`, so that the walk finds the next cell only when it needs
+    /// it: not after the cell where the ray's boundary is.
+    #[inline]
+    fn enter_next(
         &self,
         rr: &RegionRay,
         s: u32,
         k: u32,
-        t_in: f64,
-    ) -> (f64, Option<(u32, u32)>) {
+        t_out: f64,
+        face: Face,
+    ) -> Option<(u32, u32)> {
+        match rr.region {
+            Region::Front => self.next_in::<true>(rr, s, k, t_out, face),
+            Region::Back => self.next_in::<false>(rr, s, k, t_out, face),
+        }
+    }
+
+    /// `leave` for one region (`FRONT` or not), with the crossings of
+    /// `CamRay::cross_side` and `CamRay::cross_depth` written out.
+    #[inline(always)]
+    fn exit_in<const FRONT: bool>(&self, rr: &RegionRay, s: u32, k: u32, t_in: f64) -> (f64, Face) {
         let rect = &self.supers[s as usize].rect;
         let cell = &self.cells[k as usize];
         let (o, d) = (rr.cam.o, rr.cam.d);
@@ -181,7 +206,22 @@ impl RegionCells {
         }
         // The entry t never decreases from cell to cell.
         let t_out = if t_out < t_in { t_in } else { t_out };
-        let next = match face {
+        (t_out, face)
+    }
+
+    /// `enter_next` for one region.
+    #[inline(always)]
+    fn next_in<const FRONT: bool>(
+        &self,
+        rr: &RegionRay,
+        s: u32,
+        k: u32,
+        t_out: f64,
+        face: Face,
+    ) -> Option<(u32, u32)> {
+        let cell = &self.cells[k as usize];
+        let (o, d) = (rr.cam.o, rr.cam.d);
+        match face {
             3 => None,
             2 => {
                 // Front and back pointers: the neighbours in depth order.
@@ -207,8 +247,7 @@ impl RegionCells {
                 };
                 self.side_neighbour(rr, s, axis, rr.m[axis] > 0.0, q, z, cell.zlo, cell.zhi)
             }
-        };
-        (t_out, next)
+        }
     }
 
     /// Figure 13: the neighbour across a side face. Start from the corner
@@ -350,7 +389,7 @@ impl SlabRay {
         (t0 <= t1).then_some((t0, t1))
     }
 
-    #[inline]
+    #[inline(always)]
     fn meets(&self, b: &Aabb) -> bool {
         if self.plain {
             let (x0, x1) = (
@@ -415,6 +454,16 @@ struct Mailbox {
 }
 
 impl Mailbox {
+    /// The mailbox of a primitive that ray `ray` does not cross.
+    #[inline(always)]
+    fn missed(ray: u64) -> Mailbox {
+        Mailbox {
+            ray,
+            lo: f64::INFINITY,
+            hi: f64::NEG_INFINITY,
+        }
+    }
+
     fn of(ray: u64, hits: &PrimHits) -> Mailbox {
         let (lo, hi) = match hits {
             PrimHits::Miss => (f64::INFINITY, f64::NEG_INFINITY),
@@ -500,11 +549,51 @@ impl<'a> CellTracer<'a> {
         let mailboxes = &mut self.mailboxes;
         let all_hits = &mut self.hits;
         counters.subtree_evaluations += 1;
-        // A leaf's crossings in the window, through its mailbox (section
-        // 8); the culling test against its minimal box only when the
-        // mailbox is empty.
+        // First look: the leaves whose crossings reach into the window, by
+        // their mailboxes' extents (section 8), filling the mailboxes of
+        // leaves the ray has not met yet: the culling test against the
+        // leaf's minimal box, and the intersection if it passes. None: the
+        // subtree has no boundary there. One: the subtree is that leaf, or
+        // nothing, by the operators above it (see `SubtreeLeaf`). The
+        // evaluator runs only for two or more. (A surface's crossings may
+        // straddle the window without one inside it: then the lone leaf
+        // gives nothing, or the evaluator runs for nothing; both exact.)
+        let [a, b] = cs.leaf_span[subtree as usize];
+        let mut lone: Option<&SubtreeLeaf> = None;
+        let mut several = false;
+        for l in &cs.subtree_leaves[a as usize..b as usize] {
+            let p = l.prim as usize;
+            let mb = &mut mailboxes[p];
+            self.eval_counts.nodes_visited += 1;
+            if mb.ray == id {
+                counters.mailbox_hits += 1;
+            } else if slab.meets(&l.cull) {
+                counters.intersection_tests += 1;
+                let hits = prims[p].intersect(ray);
+                *mb = Mailbox::of(id, &hits);
+                all_hits[p] = hits;
+            } else {
+                self.eval_counts.nodes_culled += 1;
+                *mb = Mailbox::missed(id);
+            }
+            if mb.hi >= t_lo && mb.lo <= t_end {
+                if lone.is_some() {
+                    several = true;
+                    break;
+                }
+                lone = Some(l);
+            }
+        }
+        if !several {
+            let l = lone.filter(|l| l.lone_is_result)?;
+            let p = l.prim as usize;
+            return first_crossing(&all_hits[p], PrimId(l.prim), t_lo, t_end);
+        }
+        // A leaf's crossings in the window, through its mailbox; the
+        // culling test against its minimal box only when the mailbox is
+        // empty.
         let eval_counts = &mut self.eval_counts;
-        let mut leaf = |n: NodeId, p: PrimId| -> PrimHits {
+        let leaf = |n: NodeId, p: PrimId| -> PrimHits {
             let mb = &mut mailboxes[p.index()];
             eval_counts.nodes_visited += 1;
             if mb.ray == id {
@@ -528,28 +617,6 @@ impl<'a> CellTracer<'a> {
                 window(&all_hits[p.index()], t_lo, t_end)
             }
         };
-        // First look: the leaves with anything in the window. None: the
-        // subtree has no boundary there. One: the subtree is that leaf,
-        // or nothing, by the operators above it (see `SubtreeLeaf`). The
-        // evaluator runs only for two or more.
-        let [a, b] = cs.leaf_span[subtree as usize];
-        let mut lone: Option<(PrimHits, &SubtreeLeaf)> = None;
-        let mut several = false;
-        for l in &cs.subtree_leaves[a as usize..b as usize] {
-            let h = leaf(NodeId(l.node), PrimId(l.prim));
-            if !matches!(h, PrimHits::Miss) {
-                if lone.is_some() {
-                    several = true;
-                    break;
-                }
-                lone = Some((h, l));
-            }
-        }
-        if !several {
-            return lone
-                .filter(|(_, l)| l.lone_is_result)
-                .and_then(|(h, l)| first_crossing(&h, PrimId(l.prim), t_lo, t_end));
-        }
         let origin = &cs.origin;
         let (op_ray, op_culled) = (&mut self.op_ray, &mut self.op_culled);
         self.eval
@@ -783,7 +850,7 @@ impl CellTracer<'_> {
                         t_in,
                     });
                 }
-                let (t_out, next) = rc.exit(&rr, s, k, t_in);
+                let (t_out, face) = rc.leave(&rr, s, k, t_in);
                 self.counters.cells_visited += 1;
                 let t_end = t_out.min(hi);
                 let tests = self.counters.intersection_tests;
@@ -800,8 +867,12 @@ impl CellTracer<'_> {
                     self.hint[region as usize] = s;
                     return Walk::Hit(h);
                 }
-                match next {
-                    Some((s2, k2)) if t_out < hi => {
+                // Past the end of the ray's part in the region (or NaN).
+                if t_out.partial_cmp(&hi) != Some(std::cmp::Ordering::Less) {
+                    break;
+                }
+                match rc.enter_next(&rr, s, k, t_out, face) {
+                    Some((s2, k2)) => {
                         s = s2;
                         k = k2;
                         t_in = t_out;
