@@ -629,9 +629,11 @@ pub fn machine_json(topo: &Topology, ms: &MachineStats) -> Vec<(&'static str, se
                 "bytes_sent": n.bytes_sent,
                 "hops": n.hops,
                 "paths_forwarded": n.paths_forwarded,
+                "leaves_sent": n.leaves_sent,
                 "intersection_tests": n.intersection_tests,
                 "busy_seconds": n.busy_seconds,
                 "virtual_seconds": n.virtual_seconds,
+                "waiting_seconds": n.waiting_seconds,
             })
         })
         .collect();

@@ -3,6 +3,7 @@
 //! integers, little endian), so that the bytes counted per link are real
 //! and the codec can be swapped in this one file (bincode is unmaintained;
 //! 3.0.0 is a deliberate compile_error release, hence the pin to 2).
+//! Messages travel in envelopes of stamped frames (`append_stamped`).
 
 use serde::Serialize;
 use serde::de::DeserializeOwned;
@@ -33,32 +34,74 @@ pub fn decode<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, String> {
     Ok(msg)
 }
 
-/// The bytes of `body` behind a stamp: the virtual time at which its
-/// sender finishes sending it, which `stamp` computes from the message's
-/// length (the stamp itself is always 8 bytes, an f64).
+/// Appends `body` to `envelope` as one stamped frame: its length (u32),
+/// the virtual time at which its sender finishes sending it, which `stamp`
+/// computes from the frame's length (the stamp itself is always 8 bytes,
+/// an f64), and its bytes. Returns the frame's length.
+///
+/// An envelope is what moves over a link in one transfer: one or more
+/// frames, each a message of the modelled machine. The emulation gathers
+/// the messages a node sends during a slice of its work into one envelope
+/// per link, so that a message costs the host one channel operation per
+/// slice, not one each; the modelled costs are the frames' own.
+pub fn append_stamped<T: Serialize>(
+    envelope: &mut Vec<u8>,
+    body: &T,
+    stamp: impl FnOnce(usize) -> f64,
+) -> Result<usize, String> {
+    let start = envelope.len();
+    envelope.extend_from_slice(&[0u8; 12]);
+    if let Err(e) = bincode::serde::encode_into_std_write(body, envelope, config()) {
+        envelope.truncate(start);
+        return Err(format!("cannot encode: {e}"));
+    }
+    let len = envelope.len() - start;
+    let Ok(len32) = u32::try_from(len) else {
+        envelope.truncate(start);
+        return Err(format!("a message of {len} bytes is too long to frame"));
+    };
+    let t = stamp(len);
+    envelope[start..start + 4].copy_from_slice(&len32.to_le_bytes());
+    envelope[start + 4..start + 12].copy_from_slice(&t.to_le_bytes());
+    Ok(len)
+}
+
+/// An envelope of one stamped frame.
 pub fn encode_stamped<T: Serialize>(
     body: &T,
     stamp: impl FnOnce(usize) -> f64,
 ) -> Result<Vec<u8>, String> {
-    let mut bytes = vec![0u8; 8];
-    bincode::serde::encode_into_std_write(body, &mut bytes, config())
-        .map_err(|e| format!("cannot encode: {e}"))?;
-    let t = stamp(bytes.len());
-    bytes[..8].copy_from_slice(&t.to_le_bytes());
-    Ok(bytes)
+    let mut envelope = Vec::new();
+    append_stamped(&mut envelope, body, stamp)?;
+    Ok(envelope)
 }
 
-/// The stamp and body of a message from `encode_stamped`.
-pub fn decode_stamped<T: DeserializeOwned>(bytes: &[u8]) -> Result<(f64, T), String> {
-    let Some((stamp, body)) = bytes.split_first_chunk::<8>() else {
-        return Err(format!("a message of {} bytes has no stamp", bytes.len()));
-    };
-    Ok((f64::from_le_bytes(*stamp), decode(body)?))
+/// The frames of an envelope: each one's stamp and message, in order.
+pub fn decode_envelope<T: DeserializeOwned>(mut bytes: &[u8]) -> Result<Vec<(f64, T)>, String> {
+    let mut out = Vec::new();
+    while !bytes.is_empty() {
+        let Some((head, _)) = bytes.split_first_chunk::<12>() else {
+            return Err(format!("a frame of {} bytes has no header", bytes.len()));
+        };
+        let len = u32::from_le_bytes(head[..4].try_into().expect("4 bytes")) as usize;
+        if len < 12 || len > bytes.len() {
+            return Err(format!(
+                "a frame claims {len} bytes where {} remain",
+                bytes.len()
+            ));
+        }
+        let stamp = f64::from_le_bytes(head[4..].try_into().expect("8 bytes"));
+        out.push((stamp, decode(&bytes[12..len])?));
+        bytes = &bytes[len..];
+    }
+    Ok(out)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    type Msg = Vec<(u32, f64, Option<String>)>;
 
     #[test]
     fn round_trip_and_rejects_garbage() {
@@ -73,14 +116,19 @@ mod tests {
         assert!(decode::<Vec<(u32, f64, Option<String>)>>(&long).is_err());
         assert!(decode::<Vec<(u32, f64, Option<String>)>>(&b[..b.len() - 1]).is_err());
         let mut seen = 0;
-        let s = encode_stamped(&v, |len| {
+        let mut env = encode_stamped(&v, |len| {
             seen = len;
             2.5
         })
         .unwrap();
-        assert_eq!(seen, s.len());
-        let (t, back): (f64, Vec<(u32, f64, Option<String>)>) = decode_stamped(&s).unwrap();
-        assert_eq!((t, back), (2.5, v));
-        assert!(decode_stamped::<u8>(&[1, 2]).is_err());
+        assert_eq!(seen, env.len());
+        let n = append_stamped(&mut env, &vec![(3u32, 0.5f64, None::<String>)], |_| 4.0).unwrap();
+        assert_eq!(env.len(), seen + n);
+        let back: Vec<(f64, Msg)> = decode_envelope(&env).unwrap();
+        assert_eq!(back.len(), 2);
+        assert_eq!((back[0].0, &back[0].1), (2.5, &v));
+        assert_eq!((back[1].0, back[1].1[0].0), (4.0, 3));
+        assert!(decode_envelope::<u8>(&[1, 2]).is_err());
+        assert!(decode_envelope::<u8>(&env[..env.len() - 1]).is_err());
     }
 }

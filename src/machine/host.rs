@@ -5,12 +5,13 @@
 //! exactly: every node reports how many samples it started, and the run
 //! ends when that many have finished (no time-outs). It never traces.
 
+use std::collections::HashMap;
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::time::Instant;
 
-use super::codec::{decode_stamped, encode_stamped};
+use super::codec::{append_stamped, decode_envelope, encode_stamped};
 use super::mapping::{self, Mapping};
-use super::message::{LinkModel, NodeReport, Path, Share, ToHost, ToNode};
+use super::message::{Finished, LinkModel, NodeReport, Part, Path, Share, ToHost, ToNode};
 use super::node;
 use super::topology::{MAX_DIMENSION, Topology};
 use super::transport::{HostLinks, Link, NodeLinks, channels};
@@ -113,13 +114,16 @@ impl MachineStats {
     }
 }
 
-/// Upper bound of the bytes one path takes in a node, decoded and encoded
+/// Upper bound of the bytes one sample's paths take in a node, decoded and encoded
 /// at once (a batch being sealed): its stack holds at most the rays
 /// spawned at each depth, `max_depth + 1` levels of lights + 2 rays.
 fn path_bound(scene: &Scene) -> u64 {
     let rays = (scene.max_depth as usize + 1) * (scene.lights.len() + 2);
     let decoded = std::mem::size_of::<Path>() + rays * std::mem::size_of::<RayJob>();
-    (2 * decoded) as u64
+    // With the shadow rays it may send off alone, each a path without
+    // waiting rays (`node::MAX_FORKS`).
+    let leaves = node::MAX_FORKS as usize * std::mem::size_of::<Path>();
+    (2 * (decoded + leaves)) as u64
 }
 
 fn mib(b: u64) -> String {
@@ -413,6 +417,11 @@ struct Run {
     messages: u64,
     bytes: u64,
     credit: Vec<u32>,
+    /// Samples with pieces still out: the root's leaf count and whether
+    /// it was traced, once the root is in; the leaves in.
+    pieces: HashMap<u64, (Option<(u16, bool)>, u16)>,
+    /// Per node, replies gathered while taking one envelope.
+    outbox: Vec<Vec<u8>>,
 }
 
 impl Run {
@@ -437,6 +446,8 @@ impl Run {
             messages: 0,
             bytes: 0,
             credit: vec![0; nodes],
+            outbox: vec![Vec::new(); nodes],
+            pieces: HashMap::new(),
         }
     }
 
@@ -447,21 +458,38 @@ impl Run {
             *clock
         })
         .map_err(Error::Render)?;
+        self.messages += 1;
+        self.bytes += bytes.len() as u64;
         self.transmit(host, node, bytes)
     }
 
     /// Sends a reply to a message that arrived at virtual time `at`: the
     /// host answers each message as it comes (its link to each node is its
     /// own), so a reply does not wait for the host's other traffic.
-    fn reply(&mut self, host: &mut dyn HostLinks, node: u16, body: &ToNode, at: f64) -> Result<()> {
+    /// Replies leave together, one envelope per node, once the envelope
+    /// they answer is taken (`send_replies`).
+    fn reply(&mut self, node: u16, body: &ToNode, at: f64) -> Result<()> {
         let model = self.model;
-        let bytes = encode_stamped(body, |len| at + model.send_cost(len)).map_err(Error::Render)?;
-        self.transmit(host, node, bytes)
+        let len = append_stamped(&mut self.outbox[node as usize], body, |len| {
+            at + model.send_cost(len)
+        })
+        .map_err(Error::Render)?;
+        self.messages += 1;
+        self.bytes += len as u64;
+        Ok(())
+    }
+
+    fn send_replies(&mut self, host: &mut dyn HostLinks) -> Result<()> {
+        for node in 0..self.nodes {
+            if !self.outbox[node].is_empty() {
+                let bytes = std::mem::take(&mut self.outbox[node]);
+                self.transmit(host, node as u16, bytes)?;
+            }
+        }
+        Ok(())
     }
 
     fn transmit(&mut self, host: &mut dyn HostLinks, node: u16, bytes: Vec<u8>) -> Result<()> {
-        self.messages += 1;
-        self.bytes += bytes.len() as u64;
         // A node that already ended (failed) cannot take it; its own
         // failure message says why, and the run stops on it.
         let _ = host.send(node, bytes);
@@ -490,36 +518,108 @@ impl Run {
             let Ok(bytes) = host.recv() else {
                 break;
             };
-            let (sent_at, body): (f64, ToHost) = decode_stamped(&bytes).map_err(Error::Render)?;
+            let frames: Vec<(f64, ToHost)> = decode_envelope(&bytes).map_err(Error::Render)?;
+            for (sent_at, body) in frames {
+                self.take(host, sent_at, body, &mut failures, progress)?;
+            }
+            self.send_replies(host)?;
+        }
+        self.drain(host);
+        if !failures.is_empty() {
+            // The root cause first: a node's own failure, not its
+            // neighbours' lost links.
+            failures.sort_by_key(|(_, e)| e.contains("closed"));
+            let (node, error) = &failures[0];
+            return Err(Error::Render(format!("node {node} failed: {error}")));
+        }
+        if self.reports.len() < self.nodes || self.finished != self.expected {
+            return Err(Error::Render(format!(
+                "the machine stopped early: {} of {} samples finished, {} of {} nodes reported",
+                self.finished,
+                self.expected,
+                self.reports.len(),
+                self.nodes
+            )));
+        }
+        Ok(())
+    }
+
+    /// Takes one finished piece of a sample (`Part`): the sample is
+    /// finished, exactly once, when its root and all its leaves are.
+    fn finish(&mut self, f: &Finished) -> std::result::Result<(), String> {
+        let (w, b) = ((f.sample / 64) as usize, f.sample % 64);
+        if self.seen.get(w).is_none_or(|x| x & (1 << b) != 0) {
+            return Err(format!("sample {} finished twice or unknown", f.sample));
+        }
+        let pixel = (f.sample / self.spp) as u32;
+        self.film.add_fixed(pixel, f.sum);
+        let whole = match (f.part, self.pieces.get_mut(&f.sample)) {
+            (Part::Root { forks: 0 }, None) => Some(f.traced),
+            (Part::Root { forks }, None) => {
+                self.pieces.insert(f.sample, (Some((forks, f.traced)), 0));
+                None
+            }
+            (Part::Leaf, None) => {
+                self.pieces.insert(f.sample, (None, 1));
+                None
+            }
+            (Part::Root { forks }, Some(t)) => {
+                if t.0.is_some() {
+                    return Err(format!("sample {} finished twice", f.sample));
+                }
+                t.0 = Some((forks, f.traced));
+                (t.1 == forks).then_some(f.traced)
+            }
+            (Part::Leaf, Some(t)) => {
+                t.1 += 1;
+                match t.0 {
+                    Some((forks, _)) if t.1 > forks => {
+                        return Err(format!("sample {} has too many leaves", f.sample));
+                    }
+                    Some((forks, traced)) => (t.1 == forks).then_some(traced),
+                    None => None,
+                }
+            }
+        };
+        if let Some(traced) = whole {
+            self.pieces.remove(&f.sample);
+            self.seen[w] |= 1 << b;
+            self.finished += 1;
+            if traced {
+                self.traced[pixel as usize] = true;
+                self.credit[f.origin as usize] += 1;
+            }
+        }
+        Ok(())
+    }
+
+    /// Takes one message from a node.
+    fn take(
+        &mut self,
+        host: &mut dyn HostLinks,
+        sent_at: f64,
+        body: ToHost,
+        failures: &mut Vec<(u16, String)>,
+        progress: &(dyn Fn(u64) + Sync),
+    ) -> Result<()> {
+        {
             let arrival = sent_at + self.model.latency;
             self.clock = self.clock.max(arrival);
             match body {
                 ToHost::Loaded { .. } => self.loaded += 1,
                 ToHost::Done { finished, .. } => {
+                    let before = self.finished;
                     for f in &finished {
-                        let (w, b) = ((f.sample / 64) as usize, f.sample % 64);
-                        if self.seen.get(w).is_none_or(|x| x & (1 << b) != 0) {
-                            failures.push((
-                                f.origin,
-                                format!("sample {} finished twice or unknown", f.sample),
-                            ));
-                            continue;
-                        }
-                        self.seen[w] |= 1 << b;
-                        let pixel = (f.sample / self.spp) as u32;
-                        self.film.add_fixed(pixel, f.sum);
-                        if f.traced {
-                            self.traced[pixel as usize] = true;
-                            self.credit[f.origin as usize] += 1;
+                        if let Err(e) = self.finish(f) {
+                            failures.push((f.origin, e));
                         }
                     }
-                    self.finished += finished.len() as u64;
-                    progress(finished.len() as u64);
+                    progress(self.finished - before);
                     if !self.stopped {
                         for o in 0..self.nodes {
                             let c = std::mem::take(&mut self.credit[o]);
                             if c > 0 {
-                                self.reply(host, o as u16, &ToNode::Credit(c), arrival)?;
+                                self.reply(o as u16, &ToNode::Credit(c), arrival)?;
                             }
                         }
                     }
@@ -538,23 +638,6 @@ impl Run {
                 self.end_clock = self.clock;
                 self.stop_all(host);
             }
-        }
-        self.drain(host);
-        if !failures.is_empty() {
-            // The root cause first: a node's own failure, not its
-            // neighbours' lost links.
-            failures.sort_by_key(|(_, e)| e.contains("closed"));
-            let (node, error) = &failures[0];
-            return Err(Error::Render(format!("node {node} failed: {error}")));
-        }
-        if self.reports.len() < self.nodes || self.finished != self.expected {
-            return Err(Error::Render(format!(
-                "the machine stopped early: {} of {} samples finished, {} of {} nodes reported",
-                self.finished,
-                self.expected,
-                self.reports.len(),
-                self.nodes
-            )));
         }
         Ok(())
     }

@@ -7,9 +7,10 @@
 //! ray moves from node to node; the rays it has spawned but not yet traced
 //! travel with it (`stack`), and its contributions are summed in fixed
 //! point as it goes (`sum`), so that one message reaches the host per
-//! sample. Every ray carries what it needs to finish anywhere: pixel,
-//! weight, depth, kind, its number within the path, and where its walk
-//! stands.
+//! sample. A shadow ray that leaves a node while rays of its path wait
+//! there goes on alone, as a leaf path (`Part`). Every ray carries what it
+//! needs to finish anywhere: pixel, weight, depth, kind, its number within
+//! the path, and where its walk stands.
 
 use serde::{Deserialize, Serialize};
 
@@ -118,6 +119,10 @@ pub struct Path {
     pub active: Active,
     /// Spawned rays not yet traced.
     pub stack: Vec<RayJob>,
+    /// Shadow rays sent off alone as leaves (`node::MAX_FORKS`).
+    pub forks: u16,
+    /// A leaf: one shadow ray of the sample, gone on alone.
+    pub leaf: bool,
 }
 
 /// The ray being traced.
@@ -148,6 +153,17 @@ pub struct Finished {
     pub sum: [i64; 3],
     /// False for samples of empty pixel areas, never traced.
     pub traced: bool,
+    pub part: Part,
+}
+
+/// Which piece of a sample finished. A sample is finished when its root
+/// (the path it started as) and as many leaves as the root sent off have
+/// finished: the root's count comes with the root, and leaves spawn
+/// nothing, so the count is exact whatever order the pieces arrive in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Part {
+    Root { forks: u16 },
+    Leaf,
 }
 
 impl NodeReport {
@@ -163,12 +179,14 @@ impl NodeReport {
         self.bytes_sent += o.bytes_sent;
         self.hops += o.hops;
         self.paths_forwarded += o.paths_forwarded;
+        self.leaves_sent += o.leaves_sent;
         self.intersection_tests += o.intersection_tests;
         self.mailbox_hits += o.mailbox_hits;
         self.cells_visited += o.cells_visited;
         self.subtree_evaluations += o.subtree_evaluations;
         self.busy_seconds += o.busy_seconds;
         self.virtual_seconds += o.virtual_seconds;
+        self.waiting_seconds += o.waiting_seconds;
     }
 }
 
@@ -194,6 +212,8 @@ pub struct NodeReport {
     /// Links crossed by the paths this node sent (its own and forwarded).
     pub hops: u64,
     pub paths_forwarded: u64,
+    /// Shadow rays sent off alone as leaves (`Part::Leaf`).
+    pub leaves_sent: u64,
     pub intersection_tests: u64,
     pub mailbox_hits: u64,
     pub cells_visited: u64,
@@ -202,4 +222,7 @@ pub struct NodeReport {
     pub busy_seconds: f64,
     /// The node's clock at its last work.
     pub virtual_seconds: f64,
+    /// Virtual seconds the node had nothing to do: waiting for paths or
+    /// for credit (the rest of its clock is computing and sending).
+    pub waiting_seconds: f64,
 }

@@ -3,8 +3,10 @@
 //! neighbours send, traces each one's active ray through the cells it
 //! holds (shading, spawning, moving on to the next ray of the path), sends
 //! a path on when its walk reaches a cell held elsewhere (e-cube routing,
-//! hop by hop), starts the primary paths of the pixels its super cells own
-//! when the host has given it credit, and reports finished samples.
+//! hop by hop; a shadow ray that leaves while rays wait behind it goes on
+//! alone, as a leaf), starts the primary paths of the pixels its super
+//! cells own when the host has given it credit, and reports finished
+//! samples.
 //!
 //! Memory: everything the node holds is counted (its share, the paths in
 //! its queue and in its outgoing batches, encoded messages waiting for a
@@ -12,15 +14,20 @@
 //! paths so that all paths in flight fit any node (`host`).
 //!
 //! Time: the node's virtual clock advances by the thread CPU time of its
-//! work divided by the topology's compute speed, by the send cost of each
-//! message, and jumps to a message's arrival time when it was idle.
+//! computing divided by the topology's compute speed (`work_for_a_while`),
+//! by the send cost of each message, and jumps to a message's arrival time
+//! when it was idle. Whatever arrives, to trace or to pass on, is taken in
+//! order of virtual arrival. Messages are batched per link as the modelled
+//! node would (`batch_wait`), and the emulation carries a slice's messages
+//! for one link in one envelope (`codec`).
 
 use std::cmp::Ordering;
 use std::collections::{BinaryHeap, VecDeque};
+use std::time::{Duration, Instant};
 
-use super::codec::{decode_stamped, encode_stamped};
+use super::codec::{append_stamped, decode_envelope};
 use super::message::{
-    Active, Finished, LinkModel, NodeReport, Path, Routed, Share, ToHost, ToNode,
+    Active, Finished, LinkModel, NodeReport, Part, Path, Routed, Share, ToHost, ToNode,
 };
 use super::routing::{NodeId, next_dimension};
 use super::transport::{Link, NodeLinks};
@@ -33,6 +40,13 @@ use crate::trace::{CameraFrame, Film, RayJob, RayKind, Shader};
 const BATCH: usize = 64;
 /// Finished samples per message to the host.
 const DONE_BATCH: usize = 256;
+/// Shadow rays a path may send off alone (`Node::trace`): a bound on the
+/// pieces of one sample in flight, which the host's memory plan counts.
+pub const MAX_FORKS: u16 = 4;
+/// Message start-ups a batch may wait for more paths (`batch_wait`).
+const BATCH_WAIT: f64 = 2.0;
+/// Host time a node works between two readings of its CPU time.
+const SLICE: Duration = Duration::from_micros(200);
 
 /// Thread CPU time in seconds: what the node computed, not what the host's
 /// scheduler gave other threads meanwhile.
@@ -82,23 +96,27 @@ pub type NodeError = String;
 /// reported to the host by the caller.
 pub fn run(id: u16, links: &mut dyn NodeLinks) -> Result<(), NodeError> {
     // The load message first. Neighbours loaded earlier may already send
-    // rays: those wait, as bytes, until the node knows its share.
-    let mut early = Vec::new();
-    let (share, arrival) = loop {
+    // rays: those wait until the node knows its share (and its memory),
+    // then are held and taken first.
+    let mut early: Vec<(f64, ToNode)> = Vec::new();
+    let (share, arrival) = 'load: loop {
         match links
             .try_recv()
             .map_err(|c| format!("link {:?} closed before loading", c.0))?
         {
             Some(bytes) => {
-                let (sent_at, body): (f64, ToNode) = decode_stamped(&bytes)?;
-                match body {
-                    ToNode::Load(share) => {
-                        let t = sent_at + share.link.latency;
-                        break (share, t);
+                let mut frames = decode_envelope::<ToNode>(&bytes)?.into_iter();
+                while let Some((sent_at, body)) = frames.next() {
+                    match body {
+                        ToNode::Load(share) => {
+                            let t = sent_at + share.link.latency;
+                            early.extend(frames);
+                            break 'load (share, t);
+                        }
+                        ToNode::Stop => return Ok(()),
+                        ToNode::Rays(_) => early.push((sent_at, body)),
+                        _ => return Err("a message before the load message".into()),
                     }
-                    ToNode::Stop => return Ok(()),
-                    ToNode::Rays(_) => early.push(bytes),
-                    _ => return Err("a message before the load message".into()),
                 }
             }
             None => links.wait(&[]),
@@ -106,24 +124,35 @@ pub fn run(id: u16, links: &mut dyn NodeLinks) -> Result<(), NodeError> {
     };
     let share = *share;
     let mut node = Node::new(id, &share, links, arrival)?;
-    for bytes in early {
-        node.handle(bytes)?;
+    for (_, body) in &early {
+        node.hold(ray_bytes(body));
+    }
+    for (sent_at, body) in early {
+        node.take(sent_at, body)?;
     }
     node.run()
+}
+
+/// The bytes of the paths a message brings, once decoded.
+fn ray_bytes(body: &ToNode) -> usize {
+    match body {
+        ToNode::Rays(paths) => paths.iter().map(|r| r.path.bytes()).sum(),
+        _ => 0,
+    }
 }
 
 /// A path waiting in a node, ordered so that the heap's top is the
 /// earliest arrival (ties by sample, so the order is deterministic).
 struct Queued {
     arrival: f64,
-    path: Path,
+    routed: Routed,
 }
 
 impl Ord for Queued {
     fn cmp(&self, o: &Self) -> Ordering {
         o.arrival
             .total_cmp(&self.arrival)
-            .then(o.path.sample.cmp(&self.path.sample))
+            .then(o.routed.path.sample.cmp(&self.routed.path.sample))
     }
 }
 
@@ -157,7 +186,15 @@ struct Node<'a> {
     /// Per link (dimensions, then the host): paths to batch, encoded
     /// messages waiting for room.
     batches: Vec<Vec<Routed>>,
-    waiting: Vec<VecDeque<Vec<u8>>>,
+    /// Per link, when its open batch got its first path (virtual time).
+    opened: Vec<f64>,
+    /// When the open batch of finished samples got its first.
+    done_opened: f64,
+    /// Host seconds spent, in the current slice, on the emulation's own
+    /// work (encoding messages), which the clock does not charge.
+    excluded: f64,
+    /// Per link, the envelope of messages waiting to go (`codec`).
+    waiting: Vec<Vec<u8>>,
     done: Vec<Finished>,
     generated_reported: bool,
     stopping: bool,
@@ -211,7 +248,10 @@ impl<'a> Node<'a> {
             arriving_credits: VecDeque::new(),
             queue: BinaryHeap::new(),
             batches: vec![Vec::new(); d + 1],
-            waiting: vec![VecDeque::new(); d + 1],
+            opened: vec![0.0; d + 1],
+            done_opened: 0.0,
+            excluded: 0.0,
+            waiting: vec![Vec::new(); d + 1],
             done: Vec::new(),
             generated_reported: false,
             stopping: false,
@@ -255,9 +295,7 @@ impl<'a> Node<'a> {
             if self.stopping {
                 break;
             }
-            let t0 = cpu_seconds();
-            let worked = self.work_a_little()?;
-            self.charge(t0);
+            let worked = self.work_for_a_while()?;
             self.flush(!worked)?;
             if !worked && !self.stopping {
                 let sending: Vec<Link> = (0..self.waiting.len())
@@ -285,11 +323,58 @@ impl<'a> Node<'a> {
         Ok(())
     }
 
-    /// Advances the clock by the CPU time since `t0`.
-    fn charge(&mut self, t0: f64) {
-        let dt = (cpu_seconds() - t0).max(0.0);
-        self.report.busy_seconds += dt;
-        self.clock += dt / self.model.compute_speed;
+    /// Works (`work_a_little`, unit after unit) for about `SLICE` of host
+    /// time, and advances the clock by what that work cost. False when
+    /// there was nothing to do.
+    ///
+    /// The clock measures computing only: the tracing, shading and
+    /// bookkeeping a node of the modelled machine would do. Encoding,
+    /// decoding and moving messages are the link model's (`send_cost`,
+    /// latency): messages are decoded in `handle`, outside the slices, and
+    /// the time spent encoding within a slice is taken off it (`excluded`),
+    /// or the emulation's own costs, scaled by the node speed, would be
+    /// charged twice.
+    ///
+    /// Thread CPU time is the measure (what the node computed, not what the
+    /// host's scheduler gave other threads), but reading it is a system
+    /// call, dearer than a short unit of work: it is read once per slice.
+    /// Within a slice each unit advances the clock by its monotonic-clock
+    /// time, so that messages sent mid-slice carry a sensible stamp; at the
+    /// end the slice's CPU time replaces the sum of those estimates. (A
+    /// slice in which the thread was descheduled stamps its messages late
+    /// by up to the time it waited: the model errs on the slow side.)
+    fn work_for_a_while(&mut self) -> Result<bool, NodeError> {
+        let speed = self.model.compute_speed;
+        let cpu0 = cpu_seconds();
+        let start = Instant::now();
+        let mut estimated = 0.0;
+        let mut floor = self.clock;
+        let mut worked = false;
+        self.excluded = 0.0;
+        loop {
+            let before = self.clock;
+            let excluded = self.excluded;
+            let t0 = Instant::now();
+            if !self.work_a_little()? {
+                break;
+            }
+            worked = true;
+            // The unit may have jumped the clock to an arrival; that jump
+            // is a floor the correction below must not undercut.
+            if self.clock > before {
+                floor = floor.max(self.clock);
+            }
+            let dt = (t0.elapsed().as_secs_f64() - (self.excluded - excluded)).max(0.0) / speed;
+            self.clock += dt;
+            estimated += dt;
+            if start.elapsed() >= SLICE {
+                break;
+            }
+        }
+        let cpu = (cpu_seconds() - cpu0 - self.excluded).max(0.0);
+        self.report.busy_seconds += cpu;
+        self.clock = (self.clock - estimated + cpu / speed).max(floor);
+        Ok(worked)
     }
 
     /// Takes every message offered now.
@@ -304,33 +389,35 @@ impl<'a> Node<'a> {
         Ok(())
     }
 
-    /// Takes one message.
+    /// Takes one envelope.
     fn handle(&mut self, bytes: Vec<u8>) -> Result<(), NodeError> {
-        {
-            let t0 = cpu_seconds();
-            self.hold(bytes.len());
-            let (sent_at, body): (f64, ToNode) = decode_stamped(&bytes)?;
-            // The decoded paths are held before the bytes are let go.
-            if let ToNode::Rays(paths) = &body {
-                self.hold(paths.iter().map(|r| r.path.bytes()).sum());
-            }
-            self.release(bytes.len());
-            drop(bytes);
-            // The message is here once sent and across the wire. What it
-            // brings waits, with that arrival time, until the node's clock
-            // gets there (`work_a_little`); only forwarding is at once.
-            let arrival = sent_at + self.model.latency;
-            match body {
-                ToNode::Rays(paths) => {
-                    for r in paths {
-                        self.arrive(r, arrival)?;
-                    }
+        self.hold(bytes.len());
+        let frames: Vec<(f64, ToNode)> = decode_envelope(&bytes)?;
+        // The decoded paths are held before the bytes are let go.
+        self.hold(frames.iter().map(|(_, b)| ray_bytes(b)).sum());
+        self.release(bytes.len());
+        drop(bytes);
+        for (sent_at, body) in frames {
+            self.take(sent_at, body)?;
+        }
+        Ok(())
+    }
+
+    /// Takes one message (its paths' bytes held). It is here once sent and
+    /// across the wire; what it brings waits, with that arrival time, until
+    /// the node's clock gets there (`work_a_little`); only forwarding is at
+    /// once.
+    fn take(&mut self, sent_at: f64, body: ToNode) -> Result<(), NodeError> {
+        let arrival = sent_at + self.model.latency;
+        match body {
+            ToNode::Rays(paths) => {
+                for r in paths {
+                    self.arrive(r, arrival)?;
                 }
-                ToNode::Credit(n) => self.arriving_credits.push_back((arrival, n)),
-                ToNode::Stop => self.stopping = true,
-                ToNode::Load(_) => return Err("a second load message".into()),
             }
-            self.charge(t0);
+            ToNode::Credit(n) => self.arriving_credits.push_back((arrival, n)),
+            ToNode::Stop => self.stopping = true,
+            ToNode::Load(_) => return Err("a second load message".into()),
         }
         Ok(())
     }
@@ -338,19 +425,12 @@ impl<'a> Node<'a> {
     /// A path arriving over a link (its bytes held): ours to trace, or to
     /// pass on.
     fn arrive(&mut self, r: Routed, arrival: f64) -> Result<(), NodeError> {
-        if r.dest == self.id {
-            self.queue.push(Queued {
-                arrival,
-                path: r.path,
-            });
-            Ok(())
-        } else {
-            // Forwarding happens when the message arrives (the iPSC's
-            // routing is done by the node's processor, so it is charged).
-            self.clock = self.clock.max(arrival);
-            self.report.paths_forwarded += 1;
-            self.route(r)
-        }
+        // Paths to pass on wait their turn too: the iPSC's routing is done
+        // by the node's processor, in the order messages arrive in virtual
+        // time (taking one early would push the clock past work that
+        // arrived before it).
+        self.queue.push(Queued { arrival, routed: r });
+        Ok(())
     }
 
     /// Puts a path (its bytes held) in the batch of the next link toward
@@ -360,11 +440,12 @@ impl<'a> Node<'a> {
             .ok_or("routing a path to its own node")?;
         r.hops += 1;
         self.report.hops += 1;
-        self.batches[k as usize].push(r);
-        if self.batches[k as usize].len() >= BATCH {
-            self.seal(k as usize)?;
+        let i = k as usize;
+        if self.batches[i].is_empty() {
+            self.opened[i] = self.clock;
         }
-        Ok(())
+        self.batches[i].push(r);
+        self.seal_if_due(i)
     }
 
     /// One unit of work: a queued path, or a new primary path. False when
@@ -393,6 +474,7 @@ impl<'a> Node<'a> {
                 Some(_) if earliest.is_none() => {
                     // Only credit can let the node go on: wait for it.
                     if let Some(&(t, n)) = self.arriving_credits.front() {
+                        self.report.waiting_seconds += (t - self.clock).max(0.0);
                         self.clock = self.clock.max(t);
                         self.credits += n;
                         self.arriving_credits.pop_front();
@@ -412,8 +494,18 @@ impl<'a> Node<'a> {
             }
         }
         if let Some(q) = self.queue.pop() {
+            self.report.waiting_seconds += (q.arrival - self.clock).max(0.0);
             self.clock = self.clock.max(q.arrival);
-            self.trace(q.path)?;
+            if q.routed.dest == self.id {
+                self.trace(q.routed.path)?;
+            } else {
+                // Passing a path on costs the modelled node a message
+                // start-up (`send_cost`), not the host's time to do it.
+                let t0 = Instant::now();
+                self.report.paths_forwarded += 1;
+                self.route(q.routed)?;
+                self.excluded += t0.elapsed().as_secs_f64();
+            }
             return Ok(true);
         }
         Ok(false)
@@ -434,6 +526,7 @@ impl<'a> Node<'a> {
                 origin: self.id,
                 sum: Film::quantize(self.shader.miss(&job)),
                 traced: false,
+                part: Part::Root { forks: 0 },
             });
         }
         self.credits -= 1;
@@ -448,6 +541,8 @@ impl<'a> Node<'a> {
                 at: None,
             },
             stack: Vec::new(),
+            forks: 0,
+            leaf: false,
         };
         self.hold(path.bytes());
         self.trace(path)
@@ -478,12 +573,43 @@ impl<'a> Node<'a> {
                 Walk::Remote(p) => {
                     a.at = Some(p);
                     let dest = self.share.owner[p.region as usize][p.super_cell as usize];
-                    // Its bytes move, held, into the batch.
-                    return self.route(Routed {
+                    if !(shadow && !path.stack.is_empty() && path.forks < MAX_FORKS) {
+                        // Its bytes move, held, into the batch.
+                        return self.route(Routed {
+                            dest,
+                            hops: 0,
+                            path,
+                        });
+                    }
+                    // A shadow ray leaving while rays wait behind it: it
+                    // goes on alone, as a leaf that can spawn nothing, and
+                    // the path stays with the rays that start here, which
+                    // saves the path's trip there and back.
+                    path.forks += 1;
+                    self.report.leaves_sent += 1;
+                    let leaf = Path {
+                        sample: path.sample,
+                        origin: path.origin,
+                        sum: [0; 3],
+                        active: a.clone(),
+                        stack: Vec::new(),
+                        forks: 0,
+                        leaf: true,
+                    };
+                    self.hold(leaf.bytes());
+                    self.route(Routed {
                         dest,
                         hops: 0,
-                        path,
-                    });
+                        path: leaf,
+                    })?;
+                    let job = path.stack.pop().expect("a waiting ray");
+                    path.active = Active {
+                        job,
+                        number: path.active.number + 1,
+                        t_min: 0.0,
+                        at: None,
+                    };
+                    continue;
                 }
                 Walk::Hit(h) if shadow => {
                     if self.shader.shadow_crossing(&mut a.job, &h) {
@@ -495,10 +621,18 @@ impl<'a> Node<'a> {
                 Walk::Miss => Some(self.shader.miss(&a.job)),
                 Walk::Hit(h) => {
                     let (stack, created) = (&mut path.stack, &mut self.report.rays_created);
+                    let base = stack.len();
                     let c = self.shader.shade(&a.job, &h, &mut |j: RayJob| {
                         created[j.kind.index()] += 1;
                         stack.push(j);
                     });
+                    // Shadow rays first (on top): then, when a reflected
+                    // or refracted ray leaves the node, the rays still
+                    // waiting rarely start here, and a shadow ray that
+                    // leaves can go alone (above). The image does not
+                    // depend on the order: contributions sum in fixed
+                    // point.
+                    stack[base..].sort_by_key(|j| j.kind == RayKind::Shadow);
                     // The stack may have grown: hold the difference.
                     let now = path.bytes();
                     if now > held {
@@ -532,6 +666,11 @@ impl<'a> Node<'a> {
                         origin: path.origin,
                         sum: path.sum,
                         traced: true,
+                        part: if path.leaf {
+                            Part::Leaf
+                        } else {
+                            Part::Root { forks: path.forks }
+                        },
                     });
                 }
             }
@@ -539,8 +678,11 @@ impl<'a> Node<'a> {
     }
 
     fn finish_sample(&mut self, f: Finished) -> Result<(), NodeError> {
+        if self.done.is_empty() {
+            self.done_opened = self.clock;
+        }
         self.done.push(f);
-        if self.done.len() >= DONE_BATCH {
+        if self.done.len() >= DONE_BATCH || self.clock - self.done_opened >= self.batch_wait() {
             self.send_done()?;
         }
         Ok(())
@@ -555,6 +697,22 @@ impl<'a> Node<'a> {
             node: self.id,
             finished,
         })
+    }
+
+    /// How long (virtual seconds) a batch may wait for more paths: a few
+    /// message start-ups, so that batching saves start-up cost without
+    /// holding a path back much longer than its own sending would.
+    fn batch_wait(&self) -> f64 {
+        BATCH_WAIT * self.model.overhead
+    }
+
+    /// Sends link `i`'s batch if it is full or has waited long enough.
+    fn seal_if_due(&mut self, i: usize) -> Result<(), NodeError> {
+        let b = &self.batches[i];
+        if b.len() >= BATCH || (!b.is_empty() && self.clock - self.opened[i] >= self.batch_wait()) {
+            self.seal(i)?;
+        }
+        Ok(())
     }
 
     /// Encodes the batch of link `i` into a message waiting to be sent.
@@ -578,41 +736,47 @@ impl<'a> Node<'a> {
     /// Stamps, encodes and queues a message on link `i`; the clock pays
     /// its sending cost.
     fn enqueue<T: serde::Serialize>(&mut self, i: usize, body: &T) -> Result<(), NodeError> {
+        let t0 = Instant::now();
         let (model, clock) = (self.model, &mut self.clock);
-        let bytes = encode_stamped(body, |len| {
+        let len = append_stamped(&mut self.waiting[i], body, |len| {
             *clock += model.send_cost(len);
             *clock
         })?;
+        self.excluded += t0.elapsed().as_secs_f64();
         self.report.messages_sent += 1;
-        self.report.bytes_sent += bytes.len() as u64;
-        self.hold(bytes.len());
-        self.waiting[i].push_back(bytes);
+        self.report.bytes_sent += len as u64;
+        self.hold(len);
         Ok(())
     }
 
     /// Sends what the links take. `all`: also seal partial batches (the
     /// node is about to idle, so holding them back would only delay).
     fn flush(&mut self, all: bool) -> Result<(), NodeError> {
-        if all {
-            for i in 0..self.batches.len() {
+        for i in 0..self.batches.len() {
+            if all {
                 self.seal(i)?;
+            } else {
+                self.seal_if_due(i)?;
             }
+        }
+        if all || self.clock - self.done_opened >= self.batch_wait() {
             self.send_done()?;
         }
+        // Each link's waiting messages go as one envelope, or wait for
+        // room (and grow) if the link is full.
         for i in 0..self.waiting.len() {
-            while let Some(bytes) = self.waiting[i].pop_front() {
-                let n = bytes.len();
-                match self
-                    .links
-                    .try_send(self.link_of(i), bytes)
-                    .map_err(|c| format!("link {:?} closed", c.0))?
-                {
-                    None => self.release(n),
-                    Some(back) => {
-                        self.waiting[i].push_front(back);
-                        break;
-                    }
-                }
+            if self.waiting[i].is_empty() {
+                continue;
+            }
+            let bytes = std::mem::take(&mut self.waiting[i]);
+            let n = bytes.len();
+            match self
+                .links
+                .try_send(self.link_of(i), bytes)
+                .map_err(|c| format!("link {:?} closed", c.0))?
+            {
+                None => self.release(n),
+                Some(back) => self.waiting[i] = back,
             }
         }
         Ok(())

@@ -63,6 +63,9 @@ fn every_dimension_gives_the_single_node_image() {
             );
             if d > 0 {
                 assert!(stats.messages > 0 && stats.hops > 0);
+                // Shadow rays leave as leaves, and the image holds.
+                let leaves: u64 = stats.per_node.iter().map(|n| n.leaves_sent).sum();
+                assert!(leaves > 0, "d = {d}: no shadow ray went alone");
             }
         }
     }
