@@ -28,6 +28,12 @@ pub enum ToNode {
     Credit(u32),
     /// Every path is finished: report and stop.
     Stop,
+    /// From neighbour `from`, for the emulation only (not a message of the
+    /// modelled machine, not counted): the frame's stamp bounds the virtual
+    /// time of whatever it will send next (`node::LAG_SLICES`).
+    Clock {
+        from: u16,
+    },
 }
 
 /// Node to host.

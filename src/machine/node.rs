@@ -45,6 +45,15 @@ const DONE_BATCH: usize = 256;
 pub const MAX_FORKS: u16 = 4;
 /// Message start-ups a batch may wait for more paths (`batch_wait`).
 const BATCH_WAIT: f64 = 2.0;
+/// How far (in slices of work, `SLICE`) a node may run ahead of its
+/// neighbours in virtual time. Threads get the host's cores in no relation
+/// to their virtual clocks; a node far ahead would take its neighbours'
+/// late-sent paths late, as if the links were slow, and stall on credit.
+/// So the nodes keep in step: each tells its neighbours its clock (`Clock`
+/// frames, emulation only), and one that gets more than this ahead of a
+/// neighbour waits for it. (A bounded-lag scheme: the node with the
+/// slowest clock never waits, so the machine never deadlocks.)
+const LAG_SLICES: f64 = 4.0;
 /// Host time a node works between two readings of its CPU time.
 const SLICE: Duration = Duration::from_micros(200);
 
@@ -114,7 +123,7 @@ pub fn run(id: u16, links: &mut dyn NodeLinks) -> Result<(), NodeError> {
                             break 'load (share, t);
                         }
                         ToNode::Stop => return Ok(()),
-                        ToNode::Rays(_) => early.push((sent_at, body)),
+                        ToNode::Rays(_) | ToNode::Clock { .. } => early.push((sent_at, body)),
                         _ => return Err("a message before the load message".into()),
                     }
                 }
@@ -190,11 +199,17 @@ struct Node<'a> {
     opened: Vec<f64>,
     /// When the open batch of finished samples got its first.
     done_opened: f64,
+    /// Per dimension, the bound the neighbour last announced on its clock;
+    /// and the bound this node last announced (`announce`).
+    heard: Vec<f64>,
+    announced: f64,
     /// Host seconds spent, in the current slice, on the emulation's own
     /// work (encoding messages), which the clock does not charge.
     excluded: f64,
     /// Per link, the envelope of messages waiting to go (`codec`).
     waiting: Vec<Vec<u8>>,
+    /// Per link, whether its envelope holds more than `Clock` frames.
+    carries: Vec<bool>,
     done: Vec<Finished>,
     generated_reported: bool,
     stopping: bool,
@@ -251,7 +266,10 @@ impl<'a> Node<'a> {
             opened: vec![0.0; d + 1],
             done_opened: 0.0,
             excluded: 0.0,
+            heard: vec![0.0; d],
+            announced: 0.0,
             waiting: vec![Vec::new(); d + 1],
+            carries: vec![false; d + 1],
             done: Vec::new(),
             generated_reported: false,
             stopping: false,
@@ -295,7 +313,23 @@ impl<'a> Node<'a> {
             if self.stopping {
                 break;
             }
+            if self.ahead() {
+                // Wait, in real time, for the neighbours to catch up; they
+                // must know where this node stands (they may be waiting
+                // for it too, on older news).
+                if self.announced != self.clock {
+                    self.tell(self.clock)?;
+                }
+                self.flush(true)?;
+                let sending: Vec<Link> = (0..self.waiting.len())
+                    .filter(|&i| !self.waiting[i].is_empty())
+                    .map(|i| self.link_of(i))
+                    .collect();
+                self.links.wait(&sending);
+                continue;
+            }
             let worked = self.work_for_a_while()?;
+            self.announce(worked)?;
             self.flush(!worked)?;
             if !worked && !self.stopping {
                 let sending: Vec<Link> = (0..self.waiting.len())
@@ -319,6 +353,53 @@ impl<'a> Node<'a> {
             if !self.waiting[self.link_index(Link::Host)].is_empty() {
                 self.links.wait(&[Link::Host]);
             }
+        }
+        Ok(())
+    }
+
+    /// The most virtual time a node may run ahead of a neighbour: a few
+    /// slices of its work.
+    fn lag(&self) -> f64 {
+        LAG_SLICES * SLICE.as_secs_f64() / self.model.compute_speed
+    }
+
+    /// Whether the node is so far ahead of a neighbour, in virtual time,
+    /// that it must let it catch up (`LAG_SLICES`).
+    fn ahead(&self) -> bool {
+        let slowest = self.heard.iter().copied().fold(f64::INFINITY, f64::min);
+        self.clock > slowest + self.lag()
+    }
+
+    /// Tells the neighbours how far its clock got, when it moved by half
+    /// the allowed lag since it last did; or that it has nothing to do
+    /// (infinity), so that nobody waits for it.
+    fn announce(&mut self, worked: bool) -> Result<(), NodeError> {
+        let bound = if worked {
+            if self.announced.is_finite() && self.clock < self.announced + self.lag() / 2.0 {
+                return Ok(());
+            }
+            self.clock
+        } else if self.announced == f64::INFINITY {
+            return Ok(());
+        } else {
+            f64::INFINITY
+        };
+        self.tell(bound)
+    }
+
+    /// Sends the neighbours a bound on this node's clock.
+    ///
+    /// Why the machine cannot deadlock: a node waits only after telling
+    /// its clock, and a working node tells it whenever it moves by half
+    /// the lag; so what the node with the slowest clock has heard of each
+    /// neighbour is at most half the lag behind that neighbour's clock, so
+    /// at most half the lag behind its own, and it never waits.
+    fn tell(&mut self, bound: f64) -> Result<(), NodeError> {
+        self.announced = bound;
+        let from = self.id;
+        for k in 0..self.share.dimension as usize {
+            let len = append_stamped(&mut self.waiting[k], &ToNode::Clock { from }, |_| bound)?;
+            self.hold(len);
         }
         Ok(())
     }
@@ -417,6 +498,12 @@ impl<'a> Node<'a> {
             }
             ToNode::Credit(n) => self.arriving_credits.push_back((arrival, n)),
             ToNode::Stop => self.stopping = true,
+            ToNode::Clock { from } => {
+                let k = (from ^ self.id).trailing_zeros() as usize;
+                if k < self.heard.len() {
+                    self.heard[k] = sent_at;
+                }
+            }
             ToNode::Load(_) => return Err("a second load message".into()),
         }
         Ok(())
@@ -743,6 +830,7 @@ impl<'a> Node<'a> {
             *clock
         })?;
         self.excluded += t0.elapsed().as_secs_f64();
+        self.carries[i] = true;
         self.report.messages_sent += 1;
         self.report.bytes_sent += len as u64;
         self.hold(len);
@@ -770,13 +858,18 @@ impl<'a> Node<'a> {
             }
             let bytes = std::mem::take(&mut self.waiting[i]);
             let n = bytes.len();
-            match self
-                .links
-                .try_send(self.link_of(i), bytes)
-                .map_err(|c| format!("link {:?} closed", c.0))?
-            {
-                None => self.release(n),
-                Some(back) => self.waiting[i] = back,
+            match self.links.try_send(self.link_of(i), bytes) {
+                Ok(None) => {
+                    self.release(n);
+                    self.carries[i] = false;
+                }
+                Ok(Some(back)) => self.waiting[i] = back,
+                // A neighbour that has stopped needs no more clock news;
+                // anything else it would have needed.
+                Err(_) if !self.carries[i] && self.link_of(i) != Link::Host => {
+                    self.release(n);
+                }
+                Err(c) => return Err(format!("link {:?} closed", c.0)),
             }
         }
         Ok(())
