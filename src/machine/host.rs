@@ -25,7 +25,7 @@ use crate::trace::{Film, RayCounts, RayJob};
 pub const DEFAULT_CAPACITY: usize = 16;
 /// The most primary paths a node keeps unfinished: enough to keep it busy
 /// while others trace its paths.
-pub const MAX_WINDOW: u32 = 64;
+pub const MAX_WINDOW: u32 = 256;
 
 /// What to render on the machine, beyond the scene and the topology.
 #[derive(Clone, Debug)]

@@ -55,7 +55,7 @@ const BATCH_WAIT: f64 = 2.0;
 /// slowest clock never waits, so the machine never deadlocks.)
 const LAG_SLICES: f64 = 4.0;
 /// Host time a node works between two readings of its CPU time.
-const SLICE: Duration = Duration::from_micros(200);
+const SLICE: Duration = Duration::from_micros(25);
 
 /// Thread CPU time in seconds: what the node computed, not what the host's
 /// scheduler gave other threads meanwhile.
