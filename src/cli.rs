@@ -61,7 +61,7 @@ pub struct MachineArgs {
     /// How super cells are mapped to nodes: balanced by a cost pre-pass, or equal image areas.
     #[arg(long, value_enum, default_value_t = Mapping::Balanced)]
     pub mapping: Mapping,
-    /// Messages each link holds before its sender must wait.
+    /// Envelopes (a slice's messages for one link) each link holds before its sender must wait.
     #[arg(long, default_value_t = machine::DEFAULT_CAPACITY)]
     pub link_capacity: usize,
     /// Test only: node N fails after K paths (N:K).
