@@ -428,6 +428,7 @@ impl<'a> Node<'a> {
         let speed = self.model.compute_speed;
         let cpu0 = cpu_seconds();
         let start = Instant::now();
+        let mut t0 = start;
         let mut estimated = 0.0;
         let mut floor = self.clock;
         let mut worked = false;
@@ -435,20 +436,22 @@ impl<'a> Node<'a> {
         loop {
             let before = self.clock;
             let excluded = self.excluded;
-            let t0 = Instant::now();
             if !self.work_a_little()? {
                 break;
             }
             worked = true;
-            // The unit may have jumped the clock to an arrival; that jump
-            // is a floor the correction below must not undercut.
+            // The unit may have jumped the clock to an arrival, or paid a
+            // send: a floor the correction below must not undercut.
             if self.clock > before {
                 floor = floor.max(self.clock);
             }
-            let dt = (t0.elapsed().as_secs_f64() - (self.excluded - excluded)).max(0.0) / speed;
+            let t1 = Instant::now();
+            let unit = (t1 - t0).as_secs_f64() - (self.excluded - excluded);
+            t0 = t1;
+            let dt = unit.max(0.0) / speed;
             self.clock += dt;
             estimated += dt;
-            if start.elapsed() >= SLICE {
+            if t1 - start >= SLICE {
                 break;
             }
         }
