@@ -10,12 +10,17 @@
 //! arrives `latency` after it is sent):
 //!
 //! * two threads hold the two ends of a real one-dimensional hypercube
-//!   link (`transport::channels`); one sends a batch of `RayJob`s encoded
-//!   by `codec`, the other, blocked in `NodeLinks::wait` as an idle node
-//!   is, wakes, decodes it, encodes it again and sends it back;
-//! * a message's one-way time is half the median round trip: encoding,
-//!   the channel, the receiver's wake-up and decoding. Fitted as
-//!   `a + b·bytes` over four sizes (one ray to a batch of 256);
+//!   link (`transport::channels`); one sends batches of `RayJob`s encoded
+//!   by `codec`, each a millisecond after the last, to the other, which
+//!   has by then parked in `NodeLinks::wait` as an idle node does, wakes,
+//!   and decodes it. Latency only shows in virtual time when a node sat
+//!   idle waiting for a message, so the parked receiver is the case to
+//!   measure (a tight ping-pong, where the receiver is still spinning,
+//!   finds a third to a half of this latency);
+//! * a message's one-way time runs from the start of its encoding to the
+//!   end of its decoding (one monotonic clock for both threads). Its
+//!   medians at four sizes (one ray to a batch of 256) are fitted as
+//!   `a + b·bytes`;
 //! * `bandwidth` is `1 / b`, the whole pipe's cost per byte (encoding,
 //!   copying and decoding it);
 //! * `overhead` is the sender's own part at zero bytes: the intercept of
@@ -23,10 +28,10 @@
 //! * `latency` is the rest of the intercept, `a − overhead`: the
 //!   receiver's wake-up and decoding's fixed cost.
 //!
-//! Medians, because the host is shared: a round trip that waited for the
+//! Medians, because the host is shared: a message that waited for the
 //! scheduler says nothing about the link.
 
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use super::codec::{decode, encode};
 use super::host::DEFAULT_CAPACITY;
@@ -43,18 +48,19 @@ pub const HOST_NODE_MEMORY: u64 = 1 << 30;
 /// The topology's name in reports.
 pub const HOST_TOPOLOGY: &str = "host-calibrated";
 
-/// Rays per message in the ping-pong: a lone ray to a batch of paths.
+/// Rays per message: a lone ray to a batch of paths.
 const SIZES: [usize; 4] = [1, 16, 64, 256];
-/// Round trips per size, after the warm-up ones.
-const ROUND_TRIPS: usize = 300;
-const WARM_UP: usize = 30;
+/// Messages per size, after the warm-up ones, and the pause before each.
+const ROUNDS: usize = 200;
+const WARM_UP: usize = 20;
+const PAUSE: Duration = Duration::from_micros(1000);
 
 /// The medians measured for one message size.
 #[derive(Clone, Copy, Debug)]
 pub struct LinkSample {
     /// Encoded bytes of the message.
     pub bytes: usize,
-    /// Half the median round trip.
+    /// Median time from the start of encoding to the end of decoding.
     pub one_way_seconds: f64,
     /// Median time to encode the message and hand it to the channel.
     pub send_seconds: f64,
@@ -95,7 +101,7 @@ impl Calibration {
         );
         format!(
             "latency {:.1} us, overhead {:.1} us, bandwidth {:.0} MB/s, compute speed 1 \
-             (ping-pong of {lo} to {hi} byte messages over the in-process channels)",
+             (messages of {lo} to {hi} bytes to an idle node over the in-process channels)",
             self.latency * 1e6,
             self.overhead * 1e6,
             self.bandwidth / 1e6
@@ -126,23 +132,62 @@ pub fn host_dimensions(cores: usize) -> Vec<u32> {
         .collect()
 }
 
-/// Measures this host's link costs (a fraction of a second).
+/// Measures this host's link costs (about a second).
 pub fn calibrate() -> Calibration {
     // The host end stays alive: a node whose host link is gone stops.
     let (_host, mut nodes) = channels(1, DEFAULT_CAPACITY);
-    let mut echo_end = nodes.pop().expect("two nodes");
-    let mut ping_end = nodes.pop().expect("two nodes");
-    let samples: Vec<LinkSample> = std::thread::scope(|s| {
-        s.spawn(move || echo(&mut echo_end));
-        let samples = SIZES
-            .iter()
-            .filter_map(|&n| ping(&mut ping_end, n))
-            .collect();
-        // An empty message stops the echo.
-        let _ = send(&mut ping_end, Vec::new());
-        samples
+    let mut receiving = nodes.pop().expect("two nodes");
+    let mut sending = nodes.pop().expect("two nodes");
+    let base = Instant::now();
+    let (sent, received) = std::thread::scope(|s| {
+        let receiver = s.spawn(move || receive_all(&mut receiving, base));
+        let mut sent: Vec<(usize, f64)> = Vec::new();
+        for &n in &SIZES {
+            let jobs: Vec<RayJob> = (0..n).map(ray_job).collect();
+            for _ in 0..WARM_UP + ROUNDS {
+                // Long enough for the receiver to have parked, as an idle
+                // node has.
+                std::thread::sleep(PAUSE);
+                let t0 = base.elapsed();
+                let Ok(msg) = encode(&(t0.as_nanos() as u64, &jobs)) else {
+                    break;
+                };
+                let bytes = msg.len();
+                if send(&mut sending, msg).is_err() {
+                    break;
+                }
+                sent.push((bytes, (base.elapsed() - t0).as_secs_f64()));
+            }
+        }
+        // An empty message ends the receiver.
+        let _ = send(&mut sending, Vec::new());
+        (sent, receiver.join().unwrap_or_default())
     });
-    fit(samples)
+    fit(samples(&sent, &received))
+}
+
+/// Per size, the medians of the measurements after the warm-up ones.
+fn samples(sent: &[(usize, f64)], received: &[(usize, f64)]) -> Vec<LinkSample> {
+    let mut sizes: Vec<usize> = sent.iter().map(|s| s.0).collect();
+    sizes.dedup();
+    sizes
+        .into_iter()
+        .filter_map(|bytes| {
+            let of = |v: &[(usize, f64)]| -> Vec<f64> {
+                v.iter()
+                    .filter(|m| m.0 == bytes)
+                    .skip(WARM_UP)
+                    .map(|m| m.1)
+                    .collect()
+            };
+            let (mut s, mut r) = (of(sent), of(received));
+            (!s.is_empty() && !r.is_empty()).then(|| LinkSample {
+                bytes,
+                one_way_seconds: median(&mut r),
+                send_seconds: median(&mut s),
+            })
+        })
+        .collect()
 }
 
 /// The link costs from the samples (see the module's comment).
@@ -196,50 +241,21 @@ fn ray_job(i: usize) -> RayJob {
     }
 }
 
-/// Median round trips of messages of `n` rays; None if the link failed.
-fn ping(links: &mut dyn NodeLinks, n: usize) -> Option<LinkSample> {
-    let jobs: Vec<RayJob> = (0..n).map(ray_job).collect();
-    let mut one_way = Vec::with_capacity(ROUND_TRIPS);
-    let mut sending = Vec::with_capacity(ROUND_TRIPS);
-    let mut bytes = 0;
-    for i in 0..WARM_UP + ROUND_TRIPS {
-        let t0 = Instant::now();
-        let msg = encode(&jobs).ok()?;
-        bytes = msg.len();
-        send(links, msg).ok()?;
-        let sent = t0.elapsed().as_secs_f64();
-        let back = receive(links)?;
-        let _: Vec<RayJob> = decode(&back).ok()?;
-        let round = t0.elapsed().as_secs_f64();
-        if i >= WARM_UP {
-            one_way.push(round / 2.0);
-            sending.push(sent);
-        }
-    }
-    Some(LinkSample {
-        bytes,
-        one_way_seconds: median(&mut one_way),
-        send_seconds: median(&mut sending),
-    })
-}
-
-/// The other end: decodes, encodes again and returns every message, as a
-/// node takes and passes on a batch of paths, until an empty one.
-fn echo(links: &mut dyn NodeLinks) {
+/// The receiving end: per message, its bytes and the time from the start
+/// of its encoding to the end of its decoding, until an empty message.
+fn receive_all(links: &mut dyn NodeLinks, base: Instant) -> Vec<(usize, f64)> {
+    let mut got = Vec::new();
     while let Some(bytes) = receive(links) {
         if bytes.is_empty() {
-            return;
+            break;
         }
-        let Ok(jobs) = decode::<Vec<RayJob>>(&bytes) else {
-            return;
+        let Ok((t0, _jobs)) = decode::<(u64, Vec<RayJob>)>(&bytes) else {
+            break;
         };
-        let Ok(reply) = encode(&jobs) else {
-            return;
-        };
-        if send(links, reply).is_err() {
-            return;
-        }
+        let one_way = base.elapsed().as_nanos() as f64 - t0 as f64;
+        got.push((bytes.len(), one_way * 1e-9));
     }
+    got
 }
 
 /// Receives as an idle node does: blocked in `wait` until a message is
