@@ -2,11 +2,18 @@
 //! render a reference, then the same scene at each setting of the quality
 //! knobs (samples per pixel, adaptive threshold, recursion depth), and
 //! measure each render's error against the reference beside its run time.
-//! Every render goes through `render_point`, the one place that decides
-//! what renders a point (this host's threads today, the hypercube machine
-//! once it exists). Tables, CSV and the plot are `report::quality`'s.
+//! Every point of the curve goes through `render_point`, the one place that
+//! decides what renders a point (this host's threads). Then the model's
+//! error: a few of the points again on the hypercube machine, with a
+//! topology calibrated on this host (`machine::calibrate`), for each
+//! dimension the host has a core per node for, virtual time against the
+//! wall time of the same run (`model_runs`). Tables, CSV and the plot are
+//! `report::quality`'s.
 
 use crate::cells::CellOptions;
+use crate::error::Result;
+use crate::machine::calibrate::{self, Calibration};
+use crate::machine::{self, MachineOptions, MachineStats};
 use crate::render::{self, Accel, Adaptive, RenderOptions, RenderStats};
 use crate::report::quality::{Knobs, Point};
 use crate::report::{self, DisplayImage, compare, image_io};
@@ -163,8 +170,10 @@ pub fn sweep(
             Point {
                 knobs: *k,
                 family: k.family(scene.max_depth),
+                dimension: None,
                 wall_seconds: r.stats.wall_seconds,
                 virtual_seconds: r.virtual_seconds,
+                cpu_seconds: None,
                 metrics: compare(&display, &reference.pixels),
                 samples: r.samples,
                 pixels: opts.width as u64 * opts.height as u64,
@@ -176,6 +185,79 @@ pub fn sweep(
         .collect();
     report::quality::mark_pareto(&mut points);
     points
+}
+
+/// The points the model's error is measured on: one and four samples per
+/// pixel (one pass each, four times the work apart) and adaptive sampling
+/// at threshold 0.1 (two passes), of those `knobs` holds. A subset, so
+/// that measuring the model adds about a tenth to the sweep's time.
+pub fn model_knobs(knobs: &[Knobs], scene_depth: u32) -> Vec<Knobs> {
+    knobs
+        .iter()
+        .filter(|k| match k.family(scene_depth) {
+            "spp" => k.spp == 1 || k.spp == 4,
+            "adaptive" => k.adaptive.is_some_and(|a| a.threshold == 0.1),
+            _ => false,
+        })
+        .copied()
+        .collect()
+}
+
+/// The wall time of the span a machine render's virtual time models, from
+/// the first load message to the last finished sample: the render's wall
+/// time without the host's structure build and cost pre-pass, which the
+/// nodes' clocks do not see. (What else the host does before loading, the
+/// restriction of each node's share, stays in: it is small, and it is
+/// part of what the model leaves out.)
+pub fn machine_span(ms: &MachineStats) -> f64 {
+    (ms.wall_seconds - ms.build_seconds - ms.prepass_seconds).max(0.0)
+}
+
+/// Renders each of `knobs` on the machine of `calibration`'s topology, for
+/// each of `dimensions`, and measures it like a point: the runs of the
+/// model's error. `progress` is told each run's work units when it ends.
+pub fn model_runs(
+    scene: &Scene,
+    reference: &DisplayImage,
+    opts: &SweepOptions,
+    knobs: &[Knobs],
+    calibration: &Calibration,
+    dimensions: &[u32],
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Vec<Point>> {
+    let mut points = Vec::new();
+    for &d in dimensions {
+        let topo = calibration.topology(d);
+        for k in knobs {
+            let mut s = scene.clone();
+            s.max_depth = k.max_depth;
+            let mopts = MachineOptions::new(opts.width, opts.height, k.spp);
+            let cpu0 = calibrate::process_cpu_seconds();
+            let (film, ms, _, aa) =
+                machine::render_adaptive(&s, &topo, &mopts, k.adaptive, &|_| {})?;
+            // The build and pre-pass run on one thread: their CPU time is
+            // their wall time.
+            let cpu =
+                calibrate::process_cpu_seconds() - cpu0 - ms.build_seconds - ms.prepass_seconds;
+            progress(aa.passes as u64 * work_units(opts.height, k.spp));
+            let display = reference.comparable(&film.to_linear());
+            points.push(Point {
+                knobs: *k,
+                family: k.family(scene.max_depth),
+                dimension: Some(d),
+                wall_seconds: machine_span(&ms),
+                virtual_seconds: Some(ms.virtual_seconds),
+                cpu_seconds: Some(cpu.max(0.0)),
+                metrics: compare(&display, &reference.pixels),
+                samples: aa.samples,
+                pixels: opts.width as u64 * opts.height as u64,
+                refined_pixels: aa.refined_pixels,
+                rays: ms.rays.total(),
+                pareto: false,
+            });
+        }
+    }
+    Ok(points)
 }
 
 /// A reference given as display values of a linear film (no 8-bit
@@ -200,5 +282,23 @@ mod tests {
         assert_eq!(fam("spp"), 4, "1, 2, 4, 8");
         assert_eq!(fam("adaptive"), ADAPTIVE_THRESHOLDS.len());
         assert_eq!(fam("depth"), 2, "0 and 1, below the scene's 2");
+    }
+
+    #[test]
+    fn the_model_is_measured_on_one_and_four_spp_and_one_threshold() {
+        let labels: Vec<String> = model_knobs(&knobs(5, 64), 5)
+            .iter()
+            .map(Knobs::label)
+            .collect();
+        assert_eq!(
+            labels,
+            [
+                "spp 1, depth 5",
+                "spp 4, depth 5",
+                "spp 1 + 16 where > 0.1, depth 5"
+            ]
+        );
+        // A sweep that stops below 4 spp measures what it has.
+        assert_eq!(model_knobs(&knobs(5, 2), 5).len(), 2);
     }
 }

@@ -1,11 +1,13 @@
 //! `hypercast quality SCENE [--out DIR]` (`CLI.md`): validates its options,
 //! gets a reference (rendered, or `--reference`), runs the sweep of
-//! `crate::quality`, and writes `DIR/quality.csv`, `DIR/quality.png` and
-//! the printed table.
+//! `crate::quality`, calibrates a topology on this host and measures the
+//! model's error with it on the dimensions this host has cores for, and
+//! writes `DIR/quality.csv`, `DIR/quality.png` and the printed tables.
 
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
+use crate::machine::calibrate;
 use crate::quality::{self, SweepOptions};
 use crate::report::{self, quality as rq};
 
@@ -76,13 +78,19 @@ pub fn run(a: QualityArgs) -> Result<()> {
     // Everything the user gave is valid: only now touch the file system.
     out_dir(&a.out)?;
     let knobs = quality::knobs(scene.max_depth, a.max_spp);
-    let mut total: u64 = knobs
-        .iter()
-        .map(|k| {
-            let passes = if k.adaptive.is_some() { 2 } else { 1 };
-            passes * quality::work_units(height, k.spp)
-        })
-        .sum();
+    let model_knobs = quality::model_knobs(&knobs, scene.max_depth);
+    // The model's error needs a core per node: d with 2^d <= cores.
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let dims = calibrate::host_dimensions(cores);
+    let units = |ks: &[rq::Knobs]| -> u64 {
+        ks.iter()
+            .map(|k| {
+                let passes = if k.adaptive.is_some() { 2 } else { 1 };
+                passes * quality::work_units(height, k.spp)
+            })
+            .sum()
+    };
+    let mut total = units(&knobs) + dims.len() as u64 * units(&model_knobs);
     if given.is_none() {
         total += quality::work_units(height, a.reference_spp);
     }
@@ -112,7 +120,20 @@ pub fn run(a: QualityArgs) -> Result<()> {
         max_spp: a.max_spp,
     };
     let units = |u: u64| pb.inc(u);
-    let points = quality::sweep(&scene, &reference, &opts, &knobs, &units);
+    let mut points = quality::sweep(&scene, &reference, &opts, &knobs, &units);
+    // Calibrated after the sweep and before the runs it serves, on a host
+    // busy with nothing else of ours.
+    pb.set_prefix("model");
+    let calibration = calibrate::calibrate();
+    points.extend(quality::model_runs(
+        &scene,
+        &reference,
+        &opts,
+        &model_knobs,
+        &calibration,
+        &dims,
+        &units,
+    )?);
     pb.finish_and_clear();
     let name = a
         .scene
@@ -138,6 +159,17 @@ pub fn run(a: QualityArgs) -> Result<()> {
             points.iter().filter(|p| p.pareto).count(),
             points.len()
         );
+        println!(
+            "\nmodel error: virtual time on a {} topology against the machine's wall time, \
+             d = {} ({cores} cores)",
+            calibrate::HOST_TOPOLOGY,
+            dims.iter()
+                .map(u32::to_string)
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        println!("calibration: {}", calibration.describe());
+        print!("{}", rq::model_table(&points));
         println!(
             "model error (virtual against wall time): {}",
             rq::model_summary(&points)

@@ -4,6 +4,7 @@
 //! reads the cell structure (`cells`) and the shading rules (`trace`).
 //!
 //! * `topology`: the modelled machine (dimension, memory, links, speed);
+//! * `calibrate`: this host as a topology, its link costs measured;
 //! * `routing`: e-cube routing and Gray codes;
 //! * `mapping`: which node owns which super cell (cost pre-pass, Gray codes);
 //! * `message` and `codec`: what travels, and its bytes (bincode 2);
@@ -11,6 +12,7 @@
 //! * `node`: a node's loop (tracing, routing, flow control, memory, clock);
 //! * `host`: the coordinator (loading, credits, exact termination).
 
+pub mod calibrate;
 pub mod codec;
 pub mod host;
 pub mod mapping;

@@ -58,7 +58,13 @@ pub struct ChannelNode {
 /// The host's channels.
 pub struct ChannelHost {
     to: Vec<Sender<Vec<u8>>>,
-    from: Receiver<Vec<u8>>,
+    /// Per node, its link to the host: a node waiting for room waits on
+    /// its own link only, not with every other node on one shared channel
+    /// (whose every freed slot woke them all).
+    from: Vec<Receiver<Vec<u8>>>,
+    /// Nodes that have stopped and whose links are empty.
+    done: Vec<bool>,
+    next: usize,
 }
 
 /// The links of a hypercube of dimension `d`, each node-to-node and
@@ -66,17 +72,19 @@ pub struct ChannelHost {
 pub fn channels(d: u32, capacity: usize) -> (ChannelHost, Vec<ChannelNode>) {
     let n = 1usize << d;
     let cap = capacity.max(1);
-    let (to_host, from) = bounded(cap);
     let mut host_to = Vec::with_capacity(n);
+    let mut host_from = Vec::with_capacity(n);
     let mut nodes: Vec<ChannelNode> = (0..n)
         .map(|_| {
             let (tx, rx) = unbounded();
             host_to.push(tx);
+            let (to_host, from_node) = bounded(cap);
+            host_from.push(from_node);
             ChannelNode {
                 to: Vec::with_capacity(d as usize),
                 from: Vec::with_capacity(d as usize),
                 done: vec![false; d as usize],
-                to_host: to_host.clone(),
+                to_host,
                 from_host: rx,
                 next: 0,
             }
@@ -98,7 +106,13 @@ pub fn channels(d: u32, capacity: usize) -> (ChannelHost, Vec<ChannelNode>) {
             nodes[i].from.push(from);
         }
     }
-    (ChannelHost { to: host_to, from }, nodes)
+    let host = ChannelHost {
+        to: host_to,
+        from: host_from,
+        done: vec![false; n],
+        next: 0,
+    };
+    (host, nodes)
 }
 
 impl NodeLinks for ChannelNode {
@@ -168,7 +182,35 @@ impl HostLinks for ChannelHost {
     }
 
     fn recv(&mut self) -> Result<Vec<u8>, Closed> {
-        self.from.recv().map_err(|_| Closed(Link::Host))
+        let n = self.from.len();
+        loop {
+            // The nodes' links in turn, so that none is starved.
+            let mut open = false;
+            for i in 0..n {
+                let k = (self.next + i) % n;
+                if self.done[k] {
+                    continue;
+                }
+                match self.from[k].try_recv() {
+                    Ok(b) => {
+                        self.next = (k + 1) % n;
+                        return Ok(b);
+                    }
+                    Err(TryRecvError::Empty) => open = true,
+                    Err(TryRecvError::Disconnected) => self.done[k] = true,
+                }
+            }
+            if !open {
+                return Err(Closed(Link::Host));
+            }
+            let mut sel = Select::new();
+            for (k, rx) in self.from.iter().enumerate() {
+                if !self.done[k] {
+                    sel.recv(rx);
+                }
+            }
+            sel.ready();
+        }
     }
 }
 
@@ -187,12 +229,19 @@ mod tests {
                 assert_eq!(nodes[j].try_recv(), Ok(Some(vec![i as u8, k as u8])));
             }
         }
-        // Capacity 1: the second message is handed back.
+        // Capacity 1 per link: a node's second message is handed back,
+        // another node's own link still has room.
         assert_eq!(nodes[0].try_send(Link::Host, vec![1]), Ok(None));
-        assert_eq!(nodes[1].try_send(Link::Host, vec![2]), Ok(Some(vec![2])));
-        assert_eq!(host.recv(), Ok(vec![1]));
+        assert_eq!(nodes[0].try_send(Link::Host, vec![3]), Ok(Some(vec![3])));
+        assert_eq!(nodes[1].try_send(Link::Host, vec![2]), Ok(None));
+        let mut got = [host.recv().unwrap(), host.recv().unwrap()];
+        got.sort();
+        assert_eq!(got, [vec![1], vec![2]]);
         host.send(5, vec![9]).unwrap();
         assert_eq!(nodes[5].try_recv(), Ok(Some(vec![9])));
         assert_eq!(nodes[4].try_recv(), Ok(None));
+        // Once every node has gone and its link is empty, the host hears so.
+        drop(nodes);
+        assert_eq!(host.recv(), Err(Closed(Link::Host)));
     }
 }

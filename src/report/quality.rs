@@ -1,7 +1,8 @@
 //! The `quality` experiment's results: each point's knobs, run time and
-//! error; the Pareto front; the model's error (predicted virtual time
-//! against measured wall time); and their printed table, CSV file and plot
-//! (error against time on log-log axes). Reads measurements; never traces.
+//! error; the Pareto front; the model's error (virtual time predicted on a
+//! host-calibrated topology against the measured wall time of the same
+//! machine run); and their printed tables, CSV file and plot (error
+//! against time on log-log axes). Reads measurements; never traces.
 
 use std::io::Write;
 use std::path::Path;
@@ -46,21 +47,35 @@ impl Knobs {
     }
 }
 
-/// One measured point of the sweep.
+/// One measured render of the sweep: a point of the error-against-time
+/// curve (on this host's threads), or a run of the model's error (on the
+/// hypercube machine with a host-calibrated topology).
 #[derive(Clone, Debug)]
 pub struct Point {
     pub knobs: Knobs,
     pub family: &'static str,
+    /// The machine's dimension for a run of the model's error; None for
+    /// a render on this host's threads.
+    pub dimension: Option<u32>,
+    /// Host threads: the render's wall time. Machine: the wall time of
+    /// the span virtual time models, from loading the nodes to the last
+    /// finished sample (the host's structure build and cost pre-pass,
+    /// which the model does not time, left out).
     pub wall_seconds: f64,
+    /// The modelled machine's predicted makespan, for a machine run.
     pub virtual_seconds: Option<f64>,
+    /// CPU seconds the process spent over `wall_seconds`, for a machine
+    /// run: divided by the wall time, the cores the run really had, which
+    /// the model assumes are one per node.
+    pub cpu_seconds: Option<f64>,
     pub metrics: ImageMetrics,
     /// Primary samples over all passes, and the image's pixels.
     pub samples: u64,
     pub pixels: u64,
     pub refined_pixels: u64,
     pub rays: u64,
-    /// No other point is both at least as fast and at least as accurate
-    /// (and strictly better in one).
+    /// No other host-thread point is both at least as fast and at least
+    /// as accurate (and strictly better in one). Never set on machine runs.
     pub pareto: bool,
 }
 
@@ -78,58 +93,83 @@ pub fn relative_error(predicted: f64, measured: f64) -> f64 {
     (predicted - measured) / measured
 }
 
-/// Marks the points that no other point dominates in (time, RMSE).
+/// Marks the host-thread points that no other host-thread point
+/// dominates in (time, RMSE); machine runs are a measure of the model, not
+/// points of the curve.
 pub fn mark_pareto(points: &mut [Point]) {
     let key = |p: &Point| (p.wall_seconds, p.metrics.rmse);
-    for i in 0..points.len() {
-        let (t, e) = key(&points[i]);
-        points[i].pareto = !points.iter().any(|q| {
-            let (tq, eq) = key(q);
-            tq <= t && eq <= e && (tq < t || eq < e)
-        });
+    let curve: Vec<(f64, f64)> = points
+        .iter()
+        .filter(|p| p.dimension.is_none())
+        .map(key)
+        .collect();
+    for p in points.iter_mut() {
+        let (t, e) = key(p);
+        p.pareto = p.dimension.is_none()
+            && !curve
+                .iter()
+                .any(|&(tq, eq)| tq <= t && eq <= e && (tq < t || eq < e));
     }
 }
 
-/// The model's error over the points a machine rendered, in words:
-/// `n/a (machine not available)` until a point carries virtual time.
+/// The model's error over the machine runs, per dimension, in words:
+/// `d 0: mean |error| 4.1%, from -6.0% to +2.3% over 3 runs; d 1: ...`,
+/// or `n/a (no machine runs)`.
 pub fn model_summary(points: &[Point]) -> String {
-    let errs: Vec<f64> = points.iter().filter_map(Point::model_error).collect();
-    if errs.is_empty() {
-        return "n/a (machine not available)".into();
-    }
-    let mean = errs.iter().map(|e| e.abs()).sum::<f64>() / errs.len() as f64;
-    let worst = errs
+    let mut dims: Vec<u32> = points.iter().filter_map(|p| p.dimension).collect();
+    dims.sort_unstable();
+    dims.dedup();
+    let parts: Vec<String> = dims
         .iter()
-        .fold(0.0f64, |w, e| if e.abs() > w.abs() { *e } else { w });
-    format!(
-        "mean |relative error| {:.1}%, worst {:+.1}%, over {} points",
-        100.0 * mean,
-        100.0 * worst,
-        errs.len()
-    )
+        .filter_map(|&d| {
+            let errs: Vec<f64> = points
+                .iter()
+                .filter(|p| p.dimension == Some(d))
+                .filter_map(Point::model_error)
+                .collect();
+            if errs.is_empty() {
+                return None;
+            }
+            let mean = errs.iter().map(|e| e.abs()).sum::<f64>() / errs.len() as f64;
+            let lo = errs.iter().cloned().fold(f64::INFINITY, f64::min);
+            let hi = errs.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+            Some(format!(
+                "d {d}: mean |error| {:.1}%, from {:+.1}% to {:+.1}% over {} runs",
+                100.0 * mean,
+                100.0 * lo,
+                100.0 * hi,
+                errs.len()
+            ))
+        })
+        .collect();
+    if parts.is_empty() {
+        "n/a (no machine runs)".into()
+    } else {
+        parts.join("; ")
+    }
 }
 
 fn opt(x: Option<f64>, digits: usize) -> String {
     x.map(|v| format!("{v:.digits$}")).unwrap_or_default()
 }
 
-/// The table printed by `quality`, as Markdown (fastest first).
+/// The table of error against time printed by `quality`, as Markdown:
+/// the host-thread points, fastest first.
 pub fn table(points: &[Point]) -> String {
-    let mut rows: Vec<&Point> = points.iter().collect();
+    let mut rows: Vec<&Point> = points.iter().filter(|p| p.dimension.is_none()).collect();
     rows.sort_by(|a, b| a.wall_seconds.total_cmp(&b.wall_seconds));
     let mut s = String::from(
-        "| knobs | family | samples/px | wall s | virtual s | RMSE | PSNR dB | max error | Pareto |\n\
-         |---|---|---|---|---|---|---|---|---|\n",
+        "| knobs | family | samples/px | wall s | RMSE | PSNR dB | max error | Pareto |\n\
+         |---|---|---|---|---|---|---|---|\n",
     );
     for p in rows {
         let px = p.samples as f64 / p.pixels.max(1) as f64;
         s += &format!(
-            "| {} | {} | {:.2} | {:.3} | {} | {:.5} | {:.2} | {:.4} | {} |\n",
+            "| {} | {} | {:.2} | {:.3} | {:.5} | {:.2} | {:.4} | {} |\n",
             p.knobs.label(),
             p.family,
             px,
             p.wall_seconds,
-            opt(p.virtual_seconds, 3),
             p.metrics.rmse,
             p.metrics.psnr,
             p.metrics.max_error,
@@ -139,16 +179,45 @@ pub fn table(points: &[Point]) -> String {
     s
 }
 
-/// The CSV of the points, in sweep order, one header line.
+/// The table of the model's error printed by `quality`, as Markdown: the
+/// machine runs by dimension, in sweep order.
+pub fn model_table(points: &[Point]) -> String {
+    let mut rows: Vec<&Point> = points.iter().filter(|p| p.dimension.is_some()).collect();
+    rows.sort_by_key(|p| p.dimension);
+    let mut s = String::from(
+        "| knobs | d | nodes | machine wall s | virtual s | model error | cores busy |\n\
+         |---|---|---|---|---|---|---|\n",
+    );
+    for p in rows {
+        let d = p.dimension.unwrap_or(0);
+        s += &format!(
+            "| {} | {d} | {} | {:.3} | {} | {} | {} |\n",
+            p.knobs.label(),
+            1u64 << d,
+            p.wall_seconds,
+            opt(p.virtual_seconds, 3),
+            p.model_error()
+                .map(|e| format!("{:+.1}%", 100.0 * e))
+                .unwrap_or_default(),
+            opt(p.cpu_seconds.map(|c| c / p.wall_seconds), 2),
+        );
+    }
+    s
+}
+
+/// The CSV of every render, in sweep order, one header line: the host
+/// points (empty `dimension`), then the machine runs of the model's error
+/// (`dimension` set, `wall_seconds` the machine's span, `virtual_seconds`
+/// and `model_relative_error` filled).
 pub fn csv(points: &[Point]) -> String {
     let mut s = String::from(
-        "family,spp,aa_threshold,aa_extra_spp,max_depth,samples,refined_pixels,rays,\
-         wall_seconds,virtual_seconds,model_relative_error,rmse,psnr,max_error,pareto\n",
+        "family,spp,aa_threshold,aa_extra_spp,max_depth,dimension,samples,refined_pixels,rays,\
+         wall_seconds,virtual_seconds,model_relative_error,cpu_seconds,rmse,psnr,max_error,pareto\n",
     );
     for p in points {
         let k = &p.knobs;
         s += &format!(
-            "{},{},{},{},{},{},{},{},{:.6},{},{},{:.8},{},{:.8},{}\n",
+            "{},{},{},{},{},{},{},{},{},{:.6},{},{},{},{:.8},{},{:.8},{}\n",
             p.family,
             k.spp,
             opt(k.adaptive.map(|a| a.threshold), 4),
@@ -156,12 +225,14 @@ pub fn csv(points: &[Point]) -> String {
                 .map(|a| a.extra_spp.to_string())
                 .unwrap_or_default(),
             k.max_depth,
+            p.dimension.map(|d| d.to_string()).unwrap_or_default(),
             p.samples,
             p.refined_pixels,
             p.rays,
             p.wall_seconds,
             opt(p.virtual_seconds, 6),
             opt(p.model_error(), 6),
+            opt(p.cpu_seconds, 6),
             p.metrics.rmse,
             // JSON and CSV readers choke on "inf": leave it empty.
             opt(Some(p.metrics.psnr).filter(|x| x.is_finite()), 4),
@@ -188,8 +259,8 @@ const PLOT_SIZE: (u32, u32) = (900, 640);
 static FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans-ASCII.ttf");
 
 /// Writes the plot of error against wall time (log-log) to `path` (PNG),
-/// atomically: each family's points, and the Pareto front as a line
-/// through ringed points.
+/// atomically: each family's host-thread points, and the Pareto front as
+/// a line through ringed points.
 pub fn write_plot(path: &Path, title: &str, points: &[Point]) -> Result<()> {
     let err = |message: String| Error::Write {
         path: path.to_path_buf(),
@@ -252,6 +323,12 @@ fn draw_plot(buf: &mut [u8], title: &str, points: &[Point]) -> std::result::Resu
     plotters::style::register_font("sans-serif", FontStyle::Normal, FONT)
         .map_err(|_| "the bundled plot font does not parse".to_string())?;
     let e = |x: &dyn std::fmt::Display| x.to_string();
+    let curve: Vec<Point> = points
+        .iter()
+        .filter(|p| p.dimension.is_none())
+        .cloned()
+        .collect();
+    let points = &curve[..];
     let root = BitMapBackend::with_buffer(buf, PLOT_SIZE).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     // Zero error (a point equal to the reference) has no place on a log
@@ -346,8 +423,10 @@ mod tests {
                 max_depth: 5,
             },
             family: "spp",
+            dimension: None,
             wall_seconds: t,
             virtual_seconds: None,
+            cpu_seconds: None,
             metrics: ImageMetrics {
                 rmse: e,
                 psnr: 0.0,
@@ -383,5 +462,46 @@ mod tests {
         assert_eq!(p.model_error(), None);
         p.virtual_seconds = Some(3.0);
         assert!((p.model_error().unwrap() - 0.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn machine_runs_are_summed_up_per_dimension_and_stay_off_the_front() {
+        let run = |d: u32, wall: f64, virt: f64| Point {
+            dimension: Some(d),
+            virtual_seconds: Some(virt),
+            cpu_seconds: Some(wall),
+            ..point(wall, 0.01)
+        };
+        let mut p = vec![
+            point(1.0, 0.10),
+            run(0, 0.5, 0.4),
+            run(0, 2.0, 2.2),
+            run(1, 1.0, 1.5),
+        ];
+        assert_eq!(model_summary(&p[..1]), "n/a (no machine runs)");
+        assert_eq!(
+            model_summary(&p),
+            "d 0: mean |error| 15.0%, from -20.0% to +10.0% over 2 runs; \
+             d 1: mean |error| 50.0%, from +50.0% to +50.0% over 1 runs"
+        );
+        // The fast, accurate machine run dominates nothing.
+        mark_pareto(&mut p);
+        let front: Vec<bool> = p.iter().map(|p| p.pareto).collect();
+        assert_eq!(front, vec![true, false, false, false]);
+        let t = table(&p);
+        assert_eq!(t.lines().count(), 3, "{t}");
+        let m = model_table(&p);
+        assert_eq!(m.lines().count(), 5, "{m}");
+        assert!(
+            m.contains("| spp 1, depth 5 | 1 | 2 | 1.000 | 1.500 | +50.0% | 1.00 |"),
+            "{m}"
+        );
+        let c = csv(&p);
+        let last = c.lines().last().unwrap();
+        assert!(last.starts_with("spp,1,,,5,1,"), "{last}");
+        assert!(
+            last.contains(",1.000000,1.500000,0.500000,1.000000,"),
+            "{last}"
+        );
     }
 }

@@ -325,7 +325,8 @@ fn csv_rows(dir: &Path) -> Vec<std::collections::HashMap<String, String>> {
 
 /// `quality` on a small sweep: the reference, CSV and plot are written;
 /// the spp series' error falls as its samples (and time) grow; the Pareto
-/// front is marked; the model's error waits for the machine.
+/// front is marked; the model's error is measured on the machine, with a
+/// host-calibrated topology, on every dimension this host has cores for.
 #[test]
 fn quality_writes_table_csv_and_plot_with_falling_error() {
     let tmp = tempfile::tempdir().unwrap();
@@ -352,21 +353,50 @@ fn quality_writes_table_csv_and_plot_with_falling_error() {
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     let dir = tmp.path().join("q");
     let rows = csv_rows(&dir);
-    // spp 1, 2, 4, 8; four thresholds; depths 0, 1, 2 (the scene's is 5).
-    assert_eq!(rows.len(), 4 + 4 + 3, "{rows:?}");
-    let spp: Vec<f64> = rows
+    // spp 1, 2, 4, 8; four thresholds; depths 0, 1, 2 (the scene's is 5);
+    // then spp 1, spp 4 and threshold 0.1 on the machine per dimension.
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let dims = (0..8u32).filter(|d| 1 << d <= cores).count();
+    let (host, model): (Vec<_>, Vec<_>) = rows.iter().partition(|r| r["dimension"].is_empty());
+    assert_eq!(host.len(), 4 + 4 + 3, "{rows:?}");
+    assert_eq!(model.len(), 3 * dims, "{rows:?}");
+    let spp: Vec<f64> = host
         .iter()
         .filter(|r| r["family"] == "spp")
         .map(|r| r["rmse"].parse().unwrap())
         .collect();
     assert!(spp.windows(2).all(|w| w[1] < w[0]), "spp rmse {spp:?}");
-    let pareto = rows.iter().filter(|r| r["pareto"] == "true").count();
+    let pareto = host.iter().filter(|r| r["pareto"] == "true").count();
     assert!(pareto >= 2, "{pareto} Pareto points");
-    assert!(rows.iter().all(|r| r["virtual_seconds"].is_empty()));
+    assert!(host.iter().all(|r| r["virtual_seconds"].is_empty()));
+    let num = |r: &std::collections::HashMap<String, String>, k: &str| -> f64 {
+        r[k].parse().unwrap_or_else(|_| panic!("{k}: {r:?}"))
+    };
+    for m in &model {
+        assert_eq!(m["pareto"], "false", "{m:?}");
+        let (wall, virt) = (num(m, "wall_seconds"), num(m, "virtual_seconds"));
+        assert!(wall > 0.0 && virt > 0.0, "{m:?}");
+        let err = num(m, "model_relative_error");
+        assert!((err - (virt - wall) / wall).abs() < 1e-4, "{m:?}");
+        assert!(num(m, "cpu_seconds") >= 0.0, "{m:?}");
+        // The machine renders the very image the host did.
+        let same = host
+            .iter()
+            .find(|h| {
+                ["family", "spp", "aa_threshold", "max_depth"]
+                    .iter()
+                    .all(|k| h[*k] == m[*k])
+            })
+            .unwrap_or_else(|| panic!("no host point for {m:?}"));
+        assert_eq!(same["rmse"], m["rmse"], "{m:?}");
+        assert_eq!(same["samples"], m["samples"], "{m:?}");
+    }
     let table = String::from_utf8_lossy(&o.stdout).into_owned();
     assert!(table.contains("| spp 8, depth 5 | spp |"), "{table}");
+    assert!(table.contains("calibration: latency "), "{table}");
+    assert!(table.contains("| spp 4, depth 5 | 0 | 1 |"), "{table}");
     assert!(
-        table.contains("model error (virtual against wall time): n/a (machine not available)"),
+        table.contains("model error (virtual against wall time): d 0: mean |error| "),
         "{table}"
     );
     let plot = image::open(dir.join("quality.png")).expect("a readable PNG");
