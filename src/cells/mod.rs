@@ -71,6 +71,13 @@ pub struct RegionCells {
     pub supers: Vec<SuperCell>,
     /// Per cell, `cells[k].zlo`: the depth search reads these alone.
     pub zlo: Vec<f64>,
+    /// In a node's share (`CellStructure::restrict`), per cell: for a cell
+    /// held elsewhere, the hull of its subtree's leaves' culling boxes,
+    /// rounded outwards to f32 (24 bytes a cell); empty on a whole
+    /// structure. A ray whose part in such a cell misses the hull cannot
+    /// meet anything there, so the walk goes on without sending the ray
+    /// to the owner (`traverse::CellTracer::walk`).
+    pub remote_hull: Vec<[f32; 6]>,
 }
 
 impl RegionCells {
@@ -278,6 +285,7 @@ impl CellStructure {
                 cells,
                 supers,
                 zlo,
+                remote_hull: Vec::new(),
             }
         });
         let (leaf_span, subtree_leaves) = subtree_leaf_lists(&subtrees, memo.values().copied());
@@ -348,7 +356,8 @@ impl CellStructure {
             b += r.cells.len() * size_of::<Cell>()
                 + r.first_cell.len() * 4
                 + r.supers.len() * size_of::<SuperCell>()
-                + r.zlo.len() * 8;
+                + r.zlo.len() * 8
+                + r.remote_hull.len() * size_of::<[f32; 6]>();
             b += r.partition.nodes.len() * size_of::<bsp::BspNode>();
             b += r
                 .partition

@@ -16,7 +16,7 @@
 
 use super::bsp::stitch;
 use super::projection::{CamRay, Region, contains};
-use super::{CellStructure, NO_SUBTREE, REMOTE, RegionCells, SubtreeLeaf};
+use super::{CellStructure, REMOTE, RegionCells, SubtreeLeaf};
 use crate::csg::{Crossing, EvalCounts, Evaluator, NodeId, PrimHits, PrimId};
 use crate::geom::{Aabb, Ray, Vec3};
 use crate::render::TraceCounters;
@@ -387,6 +387,27 @@ impl SlabRay {
         let t0 = max(max(min(x0, x1), min(y0, y1)), min(z0, z1));
         let t1 = min(min(max(x0, x1), max(y0, y1)), max(z0, z1));
         (t0 <= t1).then_some((t0, t1))
+    }
+
+    /// Whether the ray's part `[t_in, t_end]` surely misses `hull` (an f32
+    /// box as in `RegionCells::remote_hull`). The interval is widened by a
+    /// relative 1e-9 so that rounding only ever keeps a cell.
+    fn misses_hull(&self, hull: &[f32; 6], ray: &Ray, t_in: f64, t_end: f64) -> bool {
+        let b = Aabb {
+            min: Vec3::new(hull[0].into(), hull[1].into(), hull[2].into()),
+            max: Vec3::new(hull[3].into(), hull[4].into(), hull[5].into()),
+        };
+        if b.min.x > b.max.x {
+            return true;
+        }
+        match self.interval(&b, ray) {
+            None => true,
+            Some((b0, b1)) => {
+                let pad = (t_in.abs() + t_end.abs()) * 1e-9;
+                // NaN compares false: the cell is kept.
+                b1 < t_in - pad || b0 > t_end + pad
+            }
+        }
     }
 
     #[inline(always)]
@@ -842,7 +863,16 @@ impl CellTracer<'_> {
                     break;
                 }
                 let subtree = rc.cells[k as usize].subtree;
-                if subtree == REMOTE {
+                let (t_out, face) = rc.leave(&rr, s, k, t_in);
+                let t_end = t_out.min(hi);
+                // A cell held elsewhere is walked through here when the
+                // ray's part in it misses the hull of its content: the
+                // owner would find nothing, and the ray saves a message.
+                if subtree == REMOTE
+                    && !self
+                        .slab
+                        .misses_hull(&rc.remote_hull[k as usize], ray, t_in, t_end)
+                {
                     return Walk::Remote(WalkPoint {
                         region,
                         super_cell: s,
@@ -850,11 +880,9 @@ impl CellTracer<'_> {
                         t_in,
                     });
                 }
-                let (t_out, face) = rc.leave(&rr, s, k, t_in);
                 self.counters.cells_visited += 1;
-                let t_end = t_out.min(hi);
                 let tests = self.counters.intersection_tests;
-                let hit = if subtree != NO_SUBTREE && t_end >= t_in {
+                let hit = if subtree < REMOTE && t_end >= t_in {
                     self.in_cell(subtree, ray, t_min.max(prev_float(t_in)), t_end)
                 } else {
                     None

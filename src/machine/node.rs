@@ -56,6 +56,13 @@ const BATCH_WAIT: f64 = 2.0;
 const LAG_SLICES: f64 = 4.0;
 /// Host time a node works between two readings of its CPU time.
 const SLICE: Duration = Duration::from_micros(25);
+/// How long (host time) the messages for the host may gather before they
+/// are handed to the link, unless the node is about to idle. Emulation
+/// only: every message keeps its own virtual stamp, so the model is the
+/// same; but the host thread, which shares the host's cores with the
+/// nodes, wakes a few thousand times a second instead of once per slice
+/// of every node.
+const HOST_COALESCE: Duration = Duration::from_micros(500);
 
 /// Thread CPU time in seconds: what the node computed, not what the host's
 /// scheduler gave other threads meanwhile.
@@ -219,6 +226,8 @@ struct Node<'a> {
     clock: f64,
     model: LinkModel,
     paths_processed: u64,
+    /// When the host link was last handed its waiting messages.
+    host_flushed: Instant,
 }
 
 impl<'a> Node<'a> {
@@ -265,6 +274,7 @@ impl<'a> Node<'a> {
             batches: vec![Vec::new(); d + 1],
             opened: vec![0.0; d + 1],
             done_opened: 0.0,
+            host_flushed: Instant::now(),
             excluded: 0.0,
             heard: vec![0.0; d],
             announced: 0.0,
@@ -855,9 +865,16 @@ impl<'a> Node<'a> {
         }
         // Each link's waiting messages go as one envelope, or wait for
         // room (and grow) if the link is full.
+        let host = self.link_index(Link::Host);
         for i in 0..self.waiting.len() {
             if self.waiting[i].is_empty() {
                 continue;
+            }
+            if i == host && !all {
+                if self.host_flushed.elapsed() < HOST_COALESCE {
+                    continue;
+                }
+                self.host_flushed = Instant::now();
             }
             let bytes = std::mem::take(&mut self.waiting[i]);
             let n = bytes.len();
