@@ -630,6 +630,7 @@ pub fn machine_json(topo: &Topology, ms: &MachineStats) -> Vec<(&'static str, se
                 "hops": n.hops,
                 "paths_forwarded": n.paths_forwarded,
                 "leaves_sent": n.leaves_sent,
+                "max_stack_rays": n.max_stack_rays,
                 "intersection_tests": n.intersection_tests,
                 "busy_seconds": n.busy_seconds,
                 "virtual_seconds": n.virtual_seconds,

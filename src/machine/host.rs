@@ -114,16 +114,38 @@ impl MachineStats {
     }
 }
 
-/// Upper bound of the bytes one sample's paths take in a node, decoded and encoded
-/// at once (a batch being sealed): its stack holds at most the rays
-/// spawned at each depth, `max_depth + 1` levels of lights + 2 rays.
+/// Upper bound of the bytes one sample's paths take in a node, decoded and
+/// encoded at once (a batch being sealed, an envelope being decoded).
 fn path_bound(scene: &Scene) -> u64 {
-    let rays = (scene.max_depth as usize + 1) * (scene.lights.len() + 2);
-    let decoded = std::mem::size_of::<Path>() + rays * std::mem::size_of::<RayJob>();
+    let rays = stack_bound(scene);
+    // The stack's capacity, as `Vec` grows it (doubling, at least 4), or
+    // exactly its length once decoded.
+    let capacity = if rays == 0 { 0 } else { (2 * rays).max(4) };
+    let decoded = std::mem::size_of::<Path>() + capacity * std::mem::size_of::<RayJob>();
     // With the shadow rays it may send off alone, each a path without
     // waiting rays (`node::MAX_FORKS`).
     let leaves = node::MAX_FORKS as usize * std::mem::size_of::<Path>();
     (2 * (decoded + leaves)) as u64
+}
+
+/// The most rays a path's stack holds. A hit spawns at most one shadow ray
+/// per light and `s` secondary rays (a reflected one where some material
+/// reflects or transmits, since total internal reflection turns
+/// transmission into reflection; a refracted one where some material
+/// transmits), and secondaries only below `max_depth`. `Node::trace` puts
+/// a hit's shadow rays on top of its secondaries, and shadow rays spawn
+/// nothing, so when the walk goes one generation deeper, at most `s − 1`
+/// rays of each generation above wait on the stack: at most `lights + s`
+/// for the hit being shaded, plus `(s − 1)` for each of the `max_depth`
+/// generations above it.
+pub fn stack_bound(scene: &Scene) -> usize {
+    let reflects = scene
+        .materials
+        .iter()
+        .any(|m| m.reflect > 0.0 || m.transmit > 0.0);
+    let transmits = scene.materials.iter().any(|m| m.transmit > 0.0);
+    let s = usize::from(reflects) + usize::from(transmits);
+    scene.lights.len() + s + scene.max_depth as usize * s.saturating_sub(1)
 }
 
 fn mib(b: u64) -> String {
@@ -167,9 +189,12 @@ impl Plan {
             .collect();
         let path_bytes = path_bound(scene);
         let most = share_bytes.iter().copied().max().unwrap_or(0);
-        // Every node may come to hold every path in flight: n windows.
+        // Every node may come to hold every path in flight (n windows),
+        // and as many finished samples of its own, credited at once but
+        // not yet handed to the host's link (`node::Node::credit_locally`;
+        // a finished sample is far smaller than a path's bound).
         let room = topo.node_memory.saturating_sub(most);
-        let window = (room / (n as u64 * path_bytes)).min(MAX_WINDOW as u64) as u32;
+        let window = (room / ((n as u64 + 1) * path_bytes)).min(MAX_WINDOW as u64) as u32;
         Plan {
             replicated_bytes: node::share_bytes(&cells, scene),
             cells,
@@ -184,7 +209,7 @@ impl Plan {
     }
 
     /// Refuses, with the numbers, a plan where some node cannot hold its
-    /// share and one path in flight per node.
+    /// share, one path in flight per node and one finished sample.
     pub fn check(&self, topo: &Topology) -> Result<()> {
         if self.window > 0 {
             return Ok(());
@@ -197,7 +222,7 @@ impl Plan {
             .enumerate()
             .max_by_key(|(_, b)| **b)
             .expect("at least one node");
-        let rays = n * self.path_bytes;
+        let rays = (n + 1) * self.path_bytes;
         let need = mib(most + rays).replace(' ', "");
         let hint = if d < MAX_DIMENSION {
             format!("use --dim {} or --node-memory {need}", d + 1)
@@ -205,7 +230,7 @@ impl Plan {
             format!("use --node-memory {need}")
         };
         Err(Error::Capacity(format!(
-            "node {worst} needs {} for its cells and {} for one path in flight per node, budget {}; {hint}",
+            "node {worst} needs {} for its cells and {} for one path in flight per node and one finished sample, budget {}; {hint}",
             mib(most),
             mib(rays),
             mib(topo.node_memory)
@@ -587,7 +612,9 @@ impl Run {
             self.finished += 1;
             if traced {
                 self.traced[pixel as usize] = true;
-                self.credit[f.origin as usize] += 1;
+                if !f.credited {
+                    self.credit[f.origin as usize] += 1;
+                }
             }
         }
         Ok(())
@@ -640,5 +667,34 @@ impl Run {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::load::{SceneSyntax, parse_scene_str};
+
+    fn scene(materials: &str, lights: usize, max_depth: u32) -> Scene {
+        let lights = vec!["(position: (0, 0, 5))"; lights].join(", ");
+        let text = format!(
+            "(camera: (eye: (0, -5, 0), look_at: (0, 0, 0), fov_y: 40, width: 8, height: 8), max_depth: {max_depth},
+              lights: [{lights}], materials: {{ {materials} }},
+              objects: [Sphere(center: (0, 0, 0), radius: 1, material: \"m\")])"
+        );
+        parse_scene_str(&text, SceneSyntax::Ron, std::path::Path::new("t.ron"))
+            .unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    #[test]
+    fn stack_bound_counts_the_secondary_kinds_the_materials_allow() {
+        // Matte: a hit's shadow rays only.
+        assert_eq!(stack_bound(&scene("\"m\": (color: (1, 1, 1))", 3, 5)), 3);
+        // Mirrors: one secondary per hit, nothing waits across generations.
+        let mirror = "\"m\": (color: (1, 1, 1), reflect: 0.5)";
+        assert_eq!(stack_bound(&scene(mirror, 3, 5)), 4);
+        // Glass: reflected and refracted, one of them waits per generation.
+        let glass = "\"m\": (color: (1, 1, 1), transmit: 0.9, ior: 1.5)";
+        assert_eq!(stack_bound(&scene(glass, 1, 8)), 1 + 2 + 8);
     }
 }

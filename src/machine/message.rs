@@ -159,6 +159,10 @@ pub struct Finished {
     pub sum: [i64; 3],
     /// False for samples of empty pixel areas, never traced.
     pub traced: bool,
+    /// The origin node took its credit back itself: the whole sample
+    /// finished there (`node::Node::credit_locally`), so the host returns
+    /// none.
+    pub credited: bool,
     pub part: Part,
 }
 
@@ -186,6 +190,7 @@ impl NodeReport {
         self.hops += o.hops;
         self.paths_forwarded += o.paths_forwarded;
         self.leaves_sent += o.leaves_sent;
+        self.max_stack_rays = self.max_stack_rays.max(o.max_stack_rays);
         self.intersection_tests += o.intersection_tests;
         self.mailbox_hits += o.mailbox_hits;
         self.cells_visited += o.cells_visited;
@@ -220,6 +225,9 @@ pub struct NodeReport {
     pub paths_forwarded: u64,
     /// Shadow rays sent off alone as leaves (`Part::Leaf`).
     pub leaves_sent: u64,
+    /// The most rays any path's stack held here (`host::stack_bound`
+    /// bounds it).
+    pub max_stack_rays: u64,
     pub intersection_tests: u64,
     pub mailbox_hits: u64,
     pub cells_visited: u64,

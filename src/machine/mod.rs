@@ -22,6 +22,8 @@ pub mod routing;
 pub mod topology;
 pub mod transport;
 
-pub use host::{DEFAULT_CAPACITY, MachineOptions, MachineStats, render, render_adaptive};
+pub use host::{
+    DEFAULT_CAPACITY, MachineOptions, MachineStats, render, render_adaptive, stack_bound,
+};
 pub use mapping::Mapping;
 pub use topology::{Topology, parse_size};

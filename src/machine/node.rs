@@ -218,6 +218,9 @@ struct Node<'a> {
     /// Per link, whether its envelope holds more than `Clock` frames.
     carries: Vec<bool>,
     done: Vec<Finished>,
+    /// Samples credited here (`credit_locally`) whose finished record has
+    /// not yet been handed to the host's link.
+    unsent_credited: u32,
     generated_reported: bool,
     stopping: bool,
     /// Bytes of rays held (queue, batches, encoded messages).
@@ -281,6 +284,7 @@ impl<'a> Node<'a> {
             waiting: vec![Vec::new(); d + 1],
             carries: vec![false; d + 1],
             done: Vec::new(),
+            unsent_credited: 0,
             generated_reported: false,
             stopping: false,
             ray_bytes: 0,
@@ -626,6 +630,7 @@ impl<'a> Node<'a> {
                 origin: self.id,
                 sum: Film::quantize(self.shader.miss(&job)),
                 traced: false,
+                credited: false,
                 part: Part::Root { forks: 0 },
             });
         }
@@ -729,10 +734,13 @@ impl<'a> Node<'a> {
                     // Shadow rays first (on top): then, when a reflected
                     // or refracted ray leaves the node, the rays still
                     // waiting rarely start here, and a shadow ray that
-                    // leaves can go alone (above). The image does not
-                    // depend on the order: contributions sum in fixed
-                    // point.
+                    // leaves can go alone (above); and the host's bound
+                    // on a stack (`host::stack_bound`) counts on this
+                    // order. The image does not depend on the order:
+                    // contributions sum in fixed point.
                     stack[base..].sort_by_key(|j| j.kind == RayKind::Shadow);
+                    let depth = stack.len() as u64;
+                    self.report.max_stack_rays = self.report.max_stack_rays.max(depth);
                     // The stack may have grown: hold the difference.
                     let now = path.bytes();
                     if now > held {
@@ -761,11 +769,14 @@ impl<'a> Node<'a> {
                 }
                 None => {
                     self.release(held);
+                    let whole = !path.leaf && path.forks == 0;
+                    let credited = whole && path.origin == self.id && self.credit_locally();
                     return self.finish_sample(Finished {
                         sample: path.sample,
                         origin: path.origin,
                         sum: path.sum,
                         traced: true,
+                        credited,
                         part: if path.leaf {
                             Part::Leaf
                         } else {
@@ -775,6 +786,21 @@ impl<'a> Node<'a> {
                 }
             }
         }
+    }
+
+    /// Takes back the credit of a sample of this node's own that finished
+    /// whole here, instead of waiting for the host to return it (a round
+    /// trip through the host link and the host's thread, for a sample the
+    /// node already knows is done). Memory stays bounded: at most a window
+    /// of such samples waits for the host's link (the host's plan counts
+    /// them), beyond that the credit comes from the host as for any other.
+    fn credit_locally(&mut self) -> bool {
+        if self.unsent_credited >= self.share.window {
+            return false;
+        }
+        self.unsent_credited += 1;
+        self.credits += 1;
+        true
     }
 
     fn finish_sample(&mut self, f: Finished) -> Result<(), NodeError> {
@@ -882,6 +908,9 @@ impl<'a> Node<'a> {
                 Ok(None) => {
                     self.release(n);
                     self.carries[i] = false;
+                    if i == host {
+                        self.unsent_credited = 0;
+                    }
                 }
                 Ok(Some(back)) => self.waiting[i] = back,
                 // A neighbour that has stopped needs no more clock news;

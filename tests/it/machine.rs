@@ -36,9 +36,18 @@ pub fn machine(
     (film, stats)
 }
 
-fn check_stats(s: &machine::MachineStats) {
+fn check_stats(scene: &Scene, s: &machine::MachineStats) {
     assert_eq!(s.per_node.len(), 1 << s.dimension);
+    // The memory plan's bound on a path's stack holds (the windows rest
+    // on it).
+    let bound = machine::stack_bound(scene) as u64;
     for n in &s.per_node {
+        assert!(
+            n.max_stack_rays <= bound,
+            "node {}: a stack of {} rays, bound {bound}",
+            n.node,
+            n.max_stack_rays
+        );
         assert!(
             n.peak_memory_bytes <= n.memory_budget_bytes,
             "node {} over budget: {n:?}",
@@ -57,7 +66,7 @@ fn every_dimension_gives_the_single_node_image() {
     for d in 0..=5 {
         for capacity in [machine::DEFAULT_CAPACITY, 1] {
             let (film, stats) = machine(&scene, d, w, h, capacity);
-            check_stats(&stats);
+            check_stats(&scene, &stats);
             let diff = film
                 .sums()
                 .iter()
@@ -93,7 +102,7 @@ fn a_scene_too_large_for_one_node_is_refused_then_fits_on_32() {
     );
     assert_eq!(e.exit_code(), 2);
     let (_, stats, _) = machine::render(&scene, &topo(5), &o, &|_| {}).expect("fits at d = 5");
-    check_stats(&stats);
+    check_stats(&scene, &stats);
 }
 
 #[test]
@@ -108,7 +117,7 @@ fn random_scenes_on_random_dimensions_equal_one_node() {
         let (w, h) = (32, 24);
         let (one, _) = cells(&scene, w, h);
         let (film, stats) = machine(&scene, d, w, h, 1 + seed as usize % 3);
-        check_stats(&stats);
+        check_stats(&scene, &stats);
         assert_eq!(film.sums(), one.sums(), "seed {seed}, d = {d}");
     }
 }
@@ -225,7 +234,7 @@ fn every_bundled_scene_is_bit_identical_on_every_dimension_capacity_and_run() {
                 o.capacity = capacity;
                 for run in 1..=2 {
                     let (film, stats) = machine_fitting(&scene, t, &o, None);
-                    check_stats(&stats);
+                    check_stats(&scene, &stats);
                     let diff = differing(&film, &reference);
                     assert_eq!(
                         diff,
@@ -273,7 +282,7 @@ fn four_spp_and_adaptive_images_are_bit_identical_for_d_0_3_5() {
             let (film, stats, _, summary) =
                 machine::render_adaptive(&scene, &topo(d), &o, adaptive, &|_| {})
                     .unwrap_or_else(|e| panic!("d = {d}: {e}"));
-            check_stats(&stats);
+            check_stats(&scene, &stats);
             assert_eq!(summary, host.aa, "d = {d}, {adaptive:?}");
             let diff = differing(&film, &host.film);
             assert_eq!(diff, 0, "d = {d}, {adaptive:?}: {diff} pixels differ");
