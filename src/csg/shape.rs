@@ -94,8 +94,10 @@ pub struct Primitive {
     pub shape: Shape,
     /// Object-to-world map; `None` when `shape` is already in world
     /// coordinates (transforms are baked into the parameters where that is
-    /// exact, see `Primitive::new`).
-    pub transform: Option<Affine>,
+    /// exact, see `Primitive::new`). Boxed: most primitives have none, and
+    /// a map (240 bytes) held inline would more than double every
+    /// primitive a node's memory budget pays for.
+    pub transform: Option<Box<Affine>>,
     pub material: MaterialId,
     /// World bounds, computed once.
     pub bounds: Aabb,
@@ -128,7 +130,7 @@ impl Primitive {
         let bounds = world_bounds(&shape, transform.as_ref());
         Primitive {
             shape,
-            transform,
+            transform: transform.map(Box::new),
             material,
             bounds,
         }
@@ -168,10 +170,14 @@ impl Primitive {
         }
     }
 
-    /// Bytes of heap memory this primitive owns (a polygon's vertices and
-    /// triangles), for the nodes' memory budgets.
+    /// Bytes of heap memory this primitive owns (its map, a polygon's
+    /// vertices and triangles), for the nodes' memory budgets.
     pub fn heap_bytes(&self) -> usize {
-        match &self.shape {
+        let map = self
+            .transform
+            .as_ref()
+            .map_or(0, |_| std::mem::size_of::<Affine>());
+        map + match &self.shape {
             Shape::Polygon(p) => p.heap_bytes(),
             _ => 0,
         }

@@ -564,7 +564,10 @@ fn baking_keeps_circular_cylinders_and_cones_exact() {
     // a quarter turn keeps the axes and bakes.
     let m = Affine::from_srt(Vec3::splat(2.0), v(30.0, 40.0, 50.0), v(1.0, 1.0, 1.0));
     let tilted = placed(unit.clone(), &m);
-    assert_eq!((&tilted.shape, tilted.transform), (&unit, Some(m)));
+    assert_eq!(
+        (&tilted.shape, tilted.transform),
+        (&unit, Some(Box::new(m)))
+    );
     let m = Affine::from_srt(Vec3::splat(2.0), v(90.0, 0.0, 0.0), v(1.0, 1.0, 1.0));
     let turned = placed(unit, &m);
     assert!(turned.transform.is_none());
@@ -1355,7 +1358,7 @@ fn random_rays_agree_with_point_membership() {
         };
         let p = placed(shape.clone(), &m);
         let (object_shape, to_object) = match &p.transform {
-            Some(t) => (&p.shape, *t),
+            Some(t) => (&p.shape, **t),
             None => (&p.shape, Affine::IDENTITY),
         };
         // Aim at a random point near the primitive from a random origin.

@@ -86,16 +86,7 @@ pub fn share_bytes(cells: &CellStructure, scene: &Scene) -> u64 {
     let prims: usize = scene
         .primitives
         .iter()
-        .map(|p| {
-            size_of::<crate::csg::Primitive>()
-                + match &p.shape {
-                    crate::csg::Shape::Polygon(poly) => {
-                        poly.vertices.len() * size_of::<crate::geom::Vec3>()
-                            + poly.triangles.len() * 12
-                    }
-                    _ => 0,
-                }
-        })
+        .map(|p| size_of::<crate::csg::Primitive>() + p.heap_bytes())
         .sum();
     let tracer = CellTracer::bytes_for(cells, scene);
     (cells.bytes()

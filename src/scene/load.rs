@@ -1751,8 +1751,8 @@ mod tests {
                 max: Vec3::ONE
             }
         );
-        assert_eq!(b.transform, Some(rotation));
-        assert_eq!(s.primitives[0].transform, Some(rotation));
+        assert_eq!(b.transform, Some(Box::new(rotation)));
+        assert_eq!(s.primitives[0].transform, Some(Box::new(rotation)));
         // Everything bakes when everything can: translations over a box.
         let s = load_ok(&ron(
             "Transform(translate: (1, 0, 0), child: Transform(scale: (2, 2, 2), \
