@@ -31,6 +31,12 @@ const CASES: &[Case] = &[
         args: &[],
     },
     Case {
+        name: "primitives-100k-cluster",
+        what: "the same on 2 nodes of `topology/cluster-d6.ron` (1 GiB each)",
+        scene: || sphere_lattice(100_000, 640, 480),
+        args: &["--topology", "topology/cluster-d6.ron", "--dim", "1"],
+    },
+    Case {
         name: "primitives-100k-roth",
         what: "the same, Roth's brute force, 160×120",
         scene: || sphere_lattice(100_000, 160, 120),
@@ -99,7 +105,16 @@ fn run_case(case: &Case) {
         image.to_str().unwrap(),
     );
     argv.extend([scene_s, "-o", image_s, "--stats", stats_s, "--quiet"]);
-    argv.extend(case.args);
+    // Files of the project (topologies) by their path in the repository.
+    let args: Vec<String> = case
+        .args
+        .iter()
+        .map(|a| match a.strip_prefix("topology/") {
+            Some(_) => repo(a).to_string_lossy().into_owned(),
+            None => a.to_string(),
+        })
+        .collect();
+    argv.extend(args.iter().map(String::as_str));
     let start = Instant::now();
     let cli = <hypercast::cli::Cli as clap::Parser>::try_parse_from(&argv).expect("arguments");
     let result = hypercast::cli::run(cli);
