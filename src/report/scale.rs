@@ -433,4 +433,3 @@ mod tests {
         assert!(parse_dims("0..11").is_err());
     }
 }
-
