@@ -780,7 +780,7 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
         );
         nodes_json.push(json!({"node": i, "super_cells": owned.len(), "cells": cells, "primitives": local.primitives.len(), "memory_bytes": plan.share_bytes[i], "estimated_work": work}));
     }
-    if let Err(e) = plan.check(&topo) {
+    if let Err(e) = plan.check(&scene, &topo) {
         println!("does not fit: {e}");
     }
     report::stats::extend(

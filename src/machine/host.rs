@@ -209,8 +209,12 @@ impl Plan {
     }
 
     /// Refuses, with the numbers, a plan where some node cannot hold its
-    /// share, one path in flight per node and one finished sample.
-    pub fn check(&self, topo: &Topology) -> Result<()> {
+    /// share, one path in flight per node and one finished sample. The
+    /// hint names a larger dimension only where more nodes can help: the
+    /// worst node owns more than one super cell (a super cell is never
+    /// split), and a node holding only the cells' skeleton (which every
+    /// share has whole) and the rays of twice the nodes would fit.
+    pub fn check(&self, scene: &Scene, topo: &Topology) -> Result<()> {
         if self.window > 0 {
             return Ok(());
         }
@@ -223,11 +227,54 @@ impl Plan {
             .max_by_key(|(_, b)| **b)
             .expect("at least one node");
         let rays = (n + 1) * self.path_bytes;
-        let need = mib(most + rays).replace(' ', "");
-        let hint = if d < MAX_DIMENSION {
-            format!("use --dim {} or --node-memory {need}", d + 1)
-        } else {
+        // Rounded up, so that the memory named is enough.
+        let need = format!(
+            "{:.2}MiB",
+            ((most + rays) as f64 / 1048576.0 * 100.0).ceil() / 100.0
+        );
+        let owned: Vec<(usize, u32)> = (0..2)
+            .flat_map(|r| {
+                self.owner[r]
+                    .iter()
+                    .enumerate()
+                    .filter(|&(_, &o)| o as usize == worst)
+                    .map(move |(s, _)| (r, s as u32))
+            })
+            .collect();
+        // Where the worst node owns a few super cells, the heaviest alone:
+        // the least any number of nodes can give it to hold. (Each costs a
+        // restriction of the structure, so not for hundreds.)
+        let heaviest_alone = (owned.len() > 1 && owned.len() <= 64).then(|| {
+            owned
+                .iter()
+                .map(|&(r, s)| {
+                    let (c, sc) = self
+                        .cells
+                        .restrict(scene, &|rr, ss| rr as usize == r && ss == s);
+                    node::share_bytes(&c, &sc)
+                })
+                .max()
+                .unwrap_or(0)
+        });
+        let (skeleton, empty) = self.cells.restrict(scene, &|_, _| false);
+        let skeleton = node::share_bytes(&skeleton, &empty);
+        let more_rays = (2 * n + 1) * self.path_bytes;
+        let hint = if d >= MAX_DIMENSION {
             format!("use --node-memory {need}")
+        } else if skeleton + more_rays > topo.node_memory {
+            format!(
+                "every node holds the skeleton of all cells ({}), so more nodes cannot help: use --node-memory {need}",
+                mib(skeleton)
+            )
+        } else if owned.len() <= 1 {
+            format!("its one super cell cannot be split over more nodes: use --node-memory {need}")
+        } else if let Some(alone) = heaviest_alone.filter(|&b| b + more_rays > topo.node_memory) {
+            format!(
+                "one of its super cells alone needs {}, and a super cell is never split over nodes: use --node-memory {need}",
+                mib(alone)
+            )
+        } else {
+            format!("use --dim {} or more, or --node-memory {need}", d + 1)
         };
         Err(Error::Capacity(format!(
             "node {worst} needs {} for its cells and {} for one path in flight per node and one finished sample, budget {}; {hint}",
@@ -263,7 +310,7 @@ pub fn render_adaptive(
 ) -> Result<(Film, MachineStats, CellStructure, AaSummary)> {
     let start = Instant::now();
     let plan = Plan::new(scene, topo, opts);
-    plan.check(topo)?;
+    plan.check(scene, topo)?;
     let sampling = Sampling {
         spp: opts.spp.max(1),
         adaptive,

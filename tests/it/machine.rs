@@ -179,6 +179,43 @@ fn bundled_scenes() -> Vec<PathBuf> {
     v
 }
 
+/// A refusal's advice is honest: it names a larger dimension only where
+/// more nodes can help, says why not otherwise, and the memory it names
+/// is enough.
+#[test]
+fn a_refusal_names_what_would_fit() {
+    use hypercast::r#gen::random::{RandomCsgOptions, random_csg};
+    let model = random_csg(1, 2000, &RandomCsgOptions::default());
+    let (scene, _) =
+        hypercast::scene::load::compile_model(&model, std::path::Path::new("random.ron")).unwrap();
+    let o = MachineOptions::new(32, 32, 1);
+    let refusal = |t: &Topology| match machine::render(&scene, t, &o, &|_| {}) {
+        Err(Error::Capacity(msg)) => msg,
+        Err(e) => panic!("not a capacity error: {e}"),
+        Ok(_) => panic!("fits on {} nodes of {} bytes", t.nodes(), t.node_memory),
+    };
+    let on = |d: u32, bytes: u64| topo(d).with_overrides(None, Some(bytes)).unwrap();
+    // A budget below the skeleton every node holds: no dimension helps.
+    let msg = refusal(&on(2, 64 << 10));
+    assert!(msg.contains("skeleton") && !msg.contains("--dim"), "{msg}");
+    // Room for the skeleton, not for the heaviest super cell.
+    let msg = refusal(&on(2, 256 << 10));
+    assert!(
+        msg.contains("super cell") && msg.contains("never split") && !msg.contains("--dim"),
+        "{msg}"
+    );
+    // The memory named is enough, on the same dimension.
+    let named = msg.rsplit("--node-memory ").next().unwrap();
+    let bytes = machine::parse_size(named).unwrap_or_else(|e| panic!("{named}: {e}"));
+    let (_, stats, _) = machine::render(&scene, &on(2, bytes), &o, &|_| {})
+        .unwrap_or_else(|e| panic!("with the named {named}: {e}"));
+    check_stats(&scene, &stats);
+    // Where more nodes help, they are named first.
+    let flake = load_scene(&repo("scenes/sphereflake4.nff")).unwrap();
+    let e = machine::render(&flake, &topo(0), &o, &|_| {}).expect_err("refused at d = 0");
+    assert!(e.to_string().contains("use --dim 1 or more"), "{e}");
+}
+
 /// Renders on `topology`; a share too large for its nodes (the level-4
 /// sphereflake on few nodes of 4.5 MiB) is rendered again with the memory
 /// the refusal names, since what is checked is the image.
