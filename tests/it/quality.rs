@@ -377,7 +377,10 @@ fn quality_writes_table_csv_and_plot_with_falling_error() {
         let (wall, virt) = (num(m, "wall_seconds"), num(m, "virtual_seconds"));
         assert!(wall > 0.0 && virt > 0.0, "{m:?}");
         let err = num(m, "model_relative_error");
-        assert!((err - (virt - wall) / wall).abs() < 1e-4, "{m:?}");
+        // The CSV gives seconds to 1e-6 and the error to 1e-6: on runs of
+        // a few milliseconds that rounding alone moves the ratio by 1e-4.
+        let rounding = 2.0 * (5e-7 / wall) * (1.0 + virt / wall) + 1e-6;
+        assert!((err - (virt - wall) / wall).abs() <= rounding, "{m:?}");
         assert!(num(m, "cpu_seconds") >= 0.0, "{m:?}");
         // The machine renders the very image the host did.
         let same = host
