@@ -771,7 +771,8 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
             .iter()
             .map(|&(r, s)| share.regions[r].cells_of(s as u32).len())
             .sum();
-        let work: f64 = owned.iter().map(|&(r, s)| plan.work[r][s]).sum();
+        // `+ 0.0`: an empty float sum is -0.0, which prints as "-0".
+        let work: f64 = owned.iter().map(|&(r, s)| plan.work[r][s]).sum::<f64>() + 0.0;
         println!(
             "{i:>4}  {:>11}  {cells:>5}  {:>10}  {:>10.3}  {work:>14.0}",
             owned.len(),

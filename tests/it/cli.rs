@@ -451,3 +451,74 @@ fn stats_count_none_of_what_a_scene_cannot_use() {
         }
     }
 }
+
+/// `inspect` (issue 3): the subdivision's counts, the share of every node
+/// against the replicated scene, the overlay at the image's size, and the
+/// same numbers in `--stats`; each node's share and work sum to the whole.
+#[test]
+fn inspect_prints_the_subdivision_and_every_nodes_share() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = util::repo("scenes/jagged_ball.ron");
+    let o = run(
+        tmp.path(),
+        &[
+            "inspect",
+            path_str(&scene),
+            "--overlay",
+            "overlay.png",
+            "--width",
+            "160",
+            "--height",
+            "120",
+            "--dim",
+            "5",
+            "--stats",
+            "inspect.json",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout).into_owned();
+    for key in [
+        "primitives          203",
+        "super cells",
+        "subtree nodes/cell",
+        "structure bytes",
+        "replicated scene",
+        "with 32 nodes",
+    ] {
+        assert!(out.contains(key), "no {key:?} in\n{out}");
+    }
+    // One row per node, and no negative zero for a node that owns nothing.
+    let rows: Vec<Vec<&str>> = out
+        .lines()
+        .map(|l| l.split_whitespace().collect::<Vec<_>>())
+        .filter(|w| w.len() == 6 && w[0].parse::<u32>().is_ok())
+        .collect();
+    assert_eq!(rows.len(), 32, "{out}");
+    // The jagged ball's 36 super cells leave some of 32 nodes without one.
+    assert!(rows.iter().any(|w| w[1] == "0"), "{out}");
+    assert!(rows.iter().all(|w| !w.contains(&"-0")), "{out}");
+    let img = image::open(tmp.path().join("overlay.png")).expect("the overlay");
+    assert_eq!((img.width(), img.height()), (160, 120));
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(tmp.path().join("inspect.json")).unwrap())
+            .unwrap();
+    assert_eq!(v["primitives"], 203);
+    assert_eq!(v["nodes"], 32);
+    let nodes = v["per_node"].as_array().expect("per_node");
+    assert_eq!(nodes.len(), 32);
+    let supers: u64 = nodes
+        .iter()
+        .map(|n| n["super_cells"].as_u64().unwrap())
+        .sum();
+    assert_eq!(supers, v["super_cells"].as_u64().unwrap(), "{v}");
+    let cells: u64 = nodes.iter().map(|n| n["cells"].as_u64().unwrap()).sum();
+    assert_eq!(cells, v["cells"].as_u64().unwrap(), "{v}");
+    // A share is less than the whole scene, and no node over budget.
+    let replicated = v["replicated_scene_bytes"].as_u64().unwrap();
+    let budget = v["memory_budget_bytes"].as_u64().unwrap();
+    for n in nodes {
+        let m = n["memory_bytes"].as_u64().unwrap();
+        assert!(m < replicated && m <= budget, "{n}");
+    }
+}
