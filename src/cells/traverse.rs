@@ -764,8 +764,8 @@ impl CellTracer<'_> {
     }
 
     /// Starts recording, per super cell of each region, the work done in
-    /// its cells (a cell entered counts 1, an intersection test 3): the
-    /// machine's cost-estimating pre-pass.
+    /// its cells (a cell entered counts 1, an intersection test or a mailbox
+    /// hit 3): the machine's cost-estimating pre-pass.
     pub fn record_work(&mut self) {
         self.profile = Some(Box::new(
             Region::BOTH.map(|r| vec![0u64; self.cs.region(r).supers.len()]),
@@ -881,15 +881,20 @@ impl CellTracer<'_> {
                     });
                 }
                 self.counters.cells_visited += 1;
-                let tests = self.counters.intersection_tests;
+                let (tests, met) = (self.counters.intersection_tests, self.counters.mailbox_hits);
                 let hit = if subtree < REMOTE && t_end >= t_in {
                     self.in_cell(subtree, ray, t_min.max(prev_float(t_in)), t_end)
                 } else {
                     None
                 };
                 if let Some(p) = &mut self.profile {
-                    p[region as usize][s as usize] +=
-                        1 + 3 * (self.counters.intersection_tests - tests);
+                    // A mailbox hit counts as a test: on the machine the
+                    // mailboxes are per node, and the cell where the ray
+                    // met the primitive before is most often another
+                    // node's, so there it is a test again.
+                    let tests = self.counters.intersection_tests - tests;
+                    let met = self.counters.mailbox_hits - met;
+                    p[region as usize][s as usize] += 1 + 3 * (tests + met);
                 }
                 if let Some(h) = hit {
                     self.hint[region as usize] = s;
