@@ -210,10 +210,12 @@ impl Plan {
 
     /// Refuses, with the numbers, a plan where some node cannot hold its
     /// share, one path in flight per node and one finished sample. The
-    /// hint names a larger dimension only where more nodes can help: the
-    /// worst node owns more than one super cell (a super cell is never
-    /// split), and a node holding only the cells' skeleton (which every
-    /// share has whole) and the rays of twice the nodes would fit.
+    /// hint names a larger dimension only where more nodes can help: a
+    /// node holding only the cells' skeleton (which every share has whole)
+    /// and the rays of twice the nodes would fit, and the worst node owns
+    /// more than one super cell (a super cell is never split), none of
+    /// which is too heavy alone. Otherwise it says which of these stands
+    /// in the way, and names only the memory that would do.
     pub fn check(&self, scene: &Scene, topo: &Topology) -> Result<()> {
         if self.window > 0 {
             return Ok(());
