@@ -216,9 +216,10 @@ struct Node<'a> {
     /// Per link, whether its envelope holds more than `Clock` frames.
     carries: Vec<bool>,
     done: Vec<Finished>,
-    /// Samples credited here (`credit_locally`) whose finished record has
-    /// not yet been handed to the host's link.
-    unsent_credited: u32,
+    /// Samples credited here (`credit_locally`) whose finished record is
+    /// still in `done`, and those in the host link's waiting envelope.
+    credited_in_done: u32,
+    credited_waiting: u32,
     generated_reported: bool,
     stopping: bool,
     /// Bytes of rays held (queue, batches, encoded messages).
@@ -282,7 +283,8 @@ impl<'a> Node<'a> {
             waiting: vec![Vec::new(); d + 1],
             carries: vec![false; d + 1],
             done: Vec::new(),
-            unsent_credited: 0,
+            credited_in_done: 0,
+            credited_waiting: 0,
             generated_reported: false,
             stopping: false,
             ray_bytes: 0,
@@ -793,10 +795,10 @@ impl<'a> Node<'a> {
     /// of such samples waits for the host's link (the host's plan counts
     /// them), beyond that the credit comes from the host as for any other.
     fn credit_locally(&mut self) -> bool {
-        if self.unsent_credited >= self.share.window {
+        if self.credited_in_done + self.credited_waiting >= self.share.window {
             return false;
         }
-        self.unsent_credited += 1;
+        self.credited_in_done += 1;
         self.credits += 1;
         true
     }
@@ -817,6 +819,7 @@ impl<'a> Node<'a> {
             return Ok(());
         }
         let finished = std::mem::take(&mut self.done);
+        self.credited_waiting += std::mem::take(&mut self.credited_in_done);
         self.send_host(ToHost::Done {
             node: self.id,
             finished,
@@ -907,7 +910,7 @@ impl<'a> Node<'a> {
                     self.release(n);
                     self.carries[i] = false;
                     if i == host {
-                        self.unsent_credited = 0;
+                        self.credited_waiting = 0;
                     }
                 }
                 Ok(Some(back)) => self.waiting[i] = back,
