@@ -739,8 +739,8 @@ impl<'a> Node<'a> {
                     // order. The image does not depend on the order:
                     // contributions sum in fixed point.
                     stack[base..].sort_by_key(|j| j.kind == RayKind::Shadow);
-                    let depth = stack.len() as u64;
-                    self.report.max_stack_rays = self.report.max_stack_rays.max(depth);
+                    let waiting = stack.len() as u64;
+                    self.report.max_stack_rays = self.report.max_stack_rays.max(waiting);
                     // The stack may have grown: hold the difference.
                     let now = path.bytes();
                     if now > held {
