@@ -243,34 +243,39 @@ impl Plan {
                     .map(move |(s, _)| (r, s as u32))
             })
             .collect();
-        // Where the worst node owns a few super cells, the heaviest alone:
-        // the least any number of nodes can give it to hold. (Each costs a
-        // restriction of the structure, so not for hundreds.)
-        let heaviest_alone = (owned.len() > 1 && owned.len() <= 64).then(|| {
-            owned
-                .iter()
-                .map(|&(r, s)| {
-                    let (c, sc) = self
-                        .cells
-                        .restrict(scene, &|rr, ss| rr as usize == r && ss == s);
-                    node::share_bytes(&c, &sc)
-                })
-                .max()
-                .unwrap_or(0)
-        });
-        let (skeleton, empty) = self.cells.restrict(scene, &|_, _| false);
-        let skeleton = node::share_bytes(&skeleton, &empty);
+        // Each look costs a restriction of the structure: taken in turn,
+        // only as far as the hint needs.
         let more_rays = (2 * n + 1) * self.path_bytes;
+        let skeleton = || {
+            let (c, sc) = self.cells.restrict(scene, &|_, _| false);
+            node::share_bytes(&c, &sc)
+        };
+        // Where the worst node owns a few super cells (not hundreds), the
+        // heaviest alone: the least any number of nodes can give it.
+        let heaviest_alone = || {
+            (owned.len() <= 64).then(|| {
+                owned
+                    .iter()
+                    .map(|&(r, s)| {
+                        let (c, sc) = self
+                            .cells
+                            .restrict(scene, &|rr, ss| rr as usize == r && ss == s);
+                        node::share_bytes(&c, &sc)
+                    })
+                    .max()
+                    .unwrap_or(0)
+            })
+        };
         let hint = if d >= MAX_DIMENSION {
             format!("use --node-memory {need}")
-        } else if skeleton + more_rays > topo.node_memory {
+        } else if let Some(b) = Some(skeleton()).filter(|&b| b + more_rays > topo.node_memory) {
             format!(
                 "every node holds the skeleton of all cells ({}), so more nodes cannot help: use --node-memory {need}",
-                mib(skeleton)
+                mib(b)
             )
         } else if owned.len() <= 1 {
             format!("its one super cell cannot be split over more nodes: use --node-memory {need}")
-        } else if let Some(alone) = heaviest_alone.filter(|&b| b + more_rays > topo.node_memory) {
+        } else if let Some(alone) = heaviest_alone().filter(|&b| b + more_rays > topo.node_memory) {
             format!(
                 "one of its super cells alone needs {}, and a super cell is never split over nodes: use --node-memory {need}",
                 mib(alone)
