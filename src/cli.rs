@@ -755,7 +755,7 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
         "paths in flight     {} per node (each at most {} bytes)",
         plan.window, plan.path_bytes
     );
-    println!("node  super_cells  cells  primitives  memory_MiB  estimated_work");
+    println!("node  super_cells  cells  primitives  memory_MiB  structure_MiB  estimated_work");
     let mut nodes_json = Vec::new();
     for (i, (share, local)) in plan.shares.iter().enumerate() {
         let owned: Vec<(usize, usize)> = (0..2)
@@ -774,13 +774,20 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
         // `+ 0.0`: an empty float sum is -0.0, which prints as "-0".
         let work: f64 = owned.iter().map(|&(r, s)| plan.work[r][s]).sum::<f64>() + 0.0;
         println!(
-            "{i:>4}  {:>11}  {cells:>5}  {:>10}  {:>10.3}  {work:>14.0}",
+            "{i:>4}  {:>11}  {cells:>5}  {:>10}  {:>10.3}  {:>13.3}  {work:>14.0}",
             owned.len(),
             local.primitives.len(),
-            plan.share_bytes[i] as f64 / 1048576.0
+            plan.share_bytes[i] as f64 / 1048576.0,
+            share.bytes() as f64 / 1048576.0
         );
-        nodes_json.push(json!({"node": i, "super_cells": owned.len(), "cells": cells, "primitives": local.primitives.len(), "memory_bytes": plan.share_bytes[i], "estimated_work": work}));
+        nodes_json.push(json!({"node": i, "super_cells": owned.len(), "cells": cells, "primitives": local.primitives.len(), "memory_bytes": plan.share_bytes[i], "structure_bytes": share.bytes(), "estimated_work": work}));
     }
+    let held: usize = plan.shares.iter().map(|(c, _)| c.bytes()).sum();
+    println!(
+        "structure held     {:.2} MiB over all nodes, {:.2}x the whole structure",
+        held as f64 / 1048576.0,
+        held as f64 / s.bytes.max(1) as f64
+    );
     if let Err(e) = plan.check(&scene, &topo) {
         println!("does not fit: {e}");
     }

@@ -30,17 +30,18 @@ pub const NO_SUBTREE: u32 = u32::MAX;
 /// machine (`CellStructure::restrict`): a walk that reaches it stops there.
 pub const REMOTE: u32 = u32::MAX - 1;
 
-/// A cell: a slab `[zlo, zhi)` in depth of a super cell (section 3.3).
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+/// A cell: a slab `[zlo, zhi)` in depth of a super cell (section 3.3), as
+/// `RegionCells::cell` puts it together. The structure keeps only what the
+/// walk reads, per cell its `zlo` and its subtree (`RegionCells`); the
+/// rest follows from the order of the cells.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Cell {
     pub zlo: f64,
     pub zhi: f64,
     pub super_cell: u32,
-    /// Root of the cell's CSG subtree in `CellStructure::subtrees`, or
-    /// `NO_SUBTREE`.
+    /// Root of the cell's CSG subtree in `CellStructure::subtrees`,
+    /// `NO_SUBTREE`, or `REMOTE`.
     pub subtree: u32,
-    /// Primitives that reach into the cell.
-    pub prims: u32,
 }
 
 /// What the walk reads of a super cell: its rectangle and its eight corner
@@ -57,32 +58,81 @@ pub struct SuperCell {
 
 /// The cells of one region: its screen partition (super cells with their
 /// corner pointers) and each super cell's cells, front to back. The front
-/// and back pointers of a cell are implicit: its neighbours in `cells`.
+/// and back pointers of a cell are implicit: its neighbours in the lists.
+///
+/// Every node of the machine holds this skeleton of the whole structure
+/// (`CellStructure::restrict`), so it is kept lean: per cell 4 bytes of
+/// subtree and 8 of depth (a cell's far end is the next one's near end:
+/// the cells of a super cell tile the region's depth range), plus, in a
+/// share, 12 of hull for a cell held elsewhere.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct RegionCells {
     pub region: Region,
+    /// The BSP. Its leaves (rectangles, primitive lists, corner pointers)
+    /// are the builder's; a node's share has none (`supers` holds what
+    /// the walk reads).
     pub partition: Partition,
-    /// Cells of super cell `s`: `cells[first_cell[s]..first_cell[s + 1]]`,
-    /// sorted by depth.
+    /// Cells of super cell `s`: `first_cell[s]..first_cell[s + 1]`, sorted
+    /// by depth.
     pub first_cell: Vec<u32>,
-    pub cells: Vec<Cell>,
-    /// Per super cell, what the walk reads (`partition.leaves` in a compact
-    /// copy).
-    pub supers: Vec<SuperCell>,
-    /// Per cell, `cells[k].zlo`: the depth search reads these alone.
+    /// Per cell, the near end of its depth slab.
     pub zlo: Vec<f64>,
+    /// Per cell, the root of its CSG subtree in `CellStructure::subtrees`,
+    /// `NO_SUBTREE` (empty) or `REMOTE` (held by another node).
+    pub subtree: Vec<u32>,
+    /// Per super cell, what the walk reads (the partition's leaves in a
+    /// compact copy).
+    pub supers: Vec<SuperCell>,
     /// In a node's share (`CellStructure::restrict`), per cell: for a cell
     /// held elsewhere, the hull of its subtree's leaves' culling boxes,
-    /// rounded outwards to f32 (24 bytes a cell); empty on a whole
-    /// structure. A ray whose part in such a cell misses the hull cannot
-    /// meet anything there, so the walk goes on without sending the ray
-    /// to the owner (`traverse::CellTracer::walk`).
-    pub remote_hull: Vec<[f32; 6]>,
+    /// quantised outwards on the scene box (`share::Hull`); empty on a
+    /// whole structure. A ray whose part in such a cell misses the hull
+    /// cannot meet anything there, so the walk goes on without sending the
+    /// ray to the owner (`traverse::CellTracer::walk`).
+    pub remote_hull: Vec<share::Hull>,
 }
 
 impl RegionCells {
     pub fn cells_of(&self, s: u32) -> std::ops::Range<usize> {
         self.first_cell[s as usize] as usize..self.first_cell[s as usize + 1] as usize
+    }
+
+    /// Number of cells.
+    pub fn cell_count(&self) -> usize {
+        self.zlo.len()
+    }
+
+    /// The far end of cell `k` of super cell `s`: the next cell's near end,
+    /// or the end of the region's depth range after the last.
+    #[inline]
+    pub fn zhi(&self, s: u32, k: u32) -> f64 {
+        let next = k as usize + 1;
+        if next < self.first_cell[s as usize + 1] as usize {
+            self.zlo[next]
+        } else {
+            self.region.depth_range().1
+        }
+    }
+
+    /// The super cell cell `k` belongs to.
+    pub fn super_cell_of(&self, k: u32) -> u32 {
+        (self.first_cell.partition_point(|&f| f <= k) - 1) as u32
+    }
+
+    /// Cell `k`, put together.
+    pub fn cell(&self, k: u32) -> Cell {
+        let s = self.super_cell_of(k);
+        Cell {
+            zlo: self.zlo[k as usize],
+            zhi: self.zhi(s, k),
+            super_cell: s,
+            subtree: self.subtree[k as usize],
+        }
+    }
+
+    /// Every cell, in order.
+    pub fn cells(&self) -> impl Iterator<Item = Cell> + '_ {
+        (0..self.cell_count() as u32).map(|k| self.cell(k))
     }
 
     /// The cell of super cell `s` containing depth `z` for a ray moving
@@ -101,10 +151,13 @@ impl RegionCells {
         (r.start + k.saturating_sub(1)) as u32
     }
 
-    /// True when no primitive reaches into super cell `s`: its pixels are
-    /// background (the paper's pixel areas, section 3.2).
+    /// True when none of super cell `s`'s cells has a subtree: its pixels
+    /// are background (the paper's pixel areas, section 3.2). (A cell held
+    /// by another node is `REMOTE`, not empty.)
     pub fn super_cell_is_empty(&self, s: u32) -> bool {
-        self.partition.leaves[s as usize].prims.is_empty()
+        self.subtree[self.cells_of(s)]
+            .iter()
+            .all(|&t| t == NO_SUBTREE)
     }
 }
 
@@ -189,6 +242,8 @@ impl CellStructure {
         let mut origin = Vec::new();
         let mut memo: HashMap<Vec<u32>, u32> = HashMap::new();
         let mut splits = 0;
+        // Primitives per cell, for the statistics only.
+        let mut prim_counts = Vec::new();
         let regions = Region::BOTH.map(|region| {
             let projected: Vec<Option<(Rect, f64, f64)>> = prim_box
                 .iter()
@@ -231,10 +286,10 @@ impl CellStructure {
                 .map(|(b, r)| r.map(|_| view.cam_box(b)))
                 .collect();
             let mut first_cell = Vec::with_capacity(partition.leaves.len() + 1);
-            let mut cells = Vec::new();
+            let (mut zlos, mut subtree_of) = (Vec::new(), Vec::new());
             let mut extents = Vec::new();
-            for (s, leaf) in partition.leaves.iter_mut().enumerate() {
-                first_cell.push(cells.len() as u32);
+            for leaf in partition.leaves.iter_mut() {
+                first_cell.push(zlos.len() as u32);
                 // Each primitive's depth extent over this super cell; those
                 // whose box does not reach into it at all are dropped.
                 extents.clear();
@@ -247,7 +302,7 @@ impl CellStructure {
                     }
                 }
                 leaf.prims.retain(|p| extents.iter().any(|e| e.0 == *p));
-                depth_partition(region, &extents, &mut |cell_prims, zlo, zhi| {
+                depth_partition(region, &extents, &mut |cell_prims, zlo, _zhi| {
                     let subtree = if cell_prims.is_empty() {
                         NO_SUBTREE
                     } else {
@@ -259,16 +314,12 @@ impl CellStructure {
                                 .map_or(NO_SUBTREE, |n| n.0)
                         })
                     };
-                    cells.push(Cell {
-                        zlo,
-                        zhi,
-                        super_cell: s as u32,
-                        subtree,
-                        prims: cell_prims.len() as u32,
-                    });
+                    zlos.push(zlo);
+                    subtree_of.push(subtree);
+                    prim_counts.push(cell_prims.len());
                 });
             }
-            first_cell.push(cells.len() as u32);
+            first_cell.push(zlos.len() as u32);
             let supers = partition
                 .leaves
                 .iter()
@@ -277,14 +328,13 @@ impl CellStructure {
                     stitches: l.stitches,
                 })
                 .collect();
-            let zlo = cells.iter().map(|c| c.zlo).collect();
             RegionCells {
                 region,
                 partition,
                 first_cell,
-                cells,
+                zlo: zlos,
+                subtree: subtree_of,
                 supers,
-                zlo,
                 remote_hull: Vec::new(),
             }
         });
@@ -300,7 +350,7 @@ impl CellStructure {
             scene_box,
             stats: BuildStats::default(),
         };
-        cs.stats = cs.compute_stats(tree, culled, memo.len(), splits);
+        cs.stats = cs.compute_stats(tree, culled, memo.len(), splits, &prim_counts);
         cs.stats.build_seconds = start.elapsed().as_secs_f64();
         cs
     }
@@ -311,6 +361,7 @@ impl CellStructure {
         culled: usize,
         distinct: usize,
         splits: u64,
+        prim_counts: &[usize],
     ) -> BuildStats {
         let mut s = BuildStats {
             culled_primitives: culled,
@@ -319,24 +370,23 @@ impl CellStructure {
             tree_nodes: tree.root.map_or(0, |r| tree.size_from(r)),
             ..Default::default()
         };
-        let mut prim_sum = 0usize;
+        let prim_sum: usize = prim_counts.iter().sum();
+        s.prims_per_cell_max = prim_counts.iter().copied().max().unwrap_or(0);
         let mut sub_sum = 0usize;
         let mut nonempty = 0usize;
         let mut sizes: HashMap<u32, usize> = HashMap::new();
         for r in &self.regions {
-            s.super_cells += r.partition.leaves.len();
-            s.cells += r.cells.len();
-            for c in &r.cells {
-                prim_sum += c.prims as usize;
-                s.prims_per_cell_max = s.prims_per_cell_max.max(c.prims as usize);
-                if c.subtree == NO_SUBTREE {
+            s.super_cells += r.supers.len();
+            s.cells += r.cell_count();
+            for &t in &r.subtree {
+                if t == NO_SUBTREE {
                     s.empty_cells += 1;
                     continue;
                 }
                 nonempty += 1;
                 let n = *sizes
-                    .entry(c.subtree)
-                    .or_insert_with(|| self.subtrees.size_from(NodeId(c.subtree)));
+                    .entry(t)
+                    .or_insert_with(|| self.subtrees.size_from(NodeId(t)));
                 sub_sum += n;
                 s.subtree_nodes_max = s.subtree_nodes_max.max(n);
             }
@@ -353,11 +403,11 @@ impl CellStructure {
         use std::mem::size_of;
         let mut b = size_of::<Self>();
         for r in &self.regions {
-            b += r.cells.len() * size_of::<Cell>()
+            b += r.subtree.len() * 4
                 + r.first_cell.len() * 4
                 + r.supers.len() * size_of::<SuperCell>()
                 + r.zlo.len() * 8
-                + r.remote_hull.len() * size_of::<[f32; 6]>();
+                + r.remote_hull.len() * size_of::<share::Hull>();
             b += r.partition.nodes.len() * size_of::<bsp::BspNode>();
             b += r
                 .partition

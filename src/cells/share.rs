@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 
 use super::{CellStructure, NO_SUBTREE, REMOTE, Region, SubtreeLeaf};
 use crate::csg::{CsgNode, CsgTree, NodeId, PrimId};
-use crate::geom::Aabb;
+use crate::geom::{Aabb, Vec3};
 use crate::scene::Scene;
 
 impl CellStructure {
@@ -34,7 +34,7 @@ impl CellStructure {
         let mut keep = vec![false; old.nodes.len()];
         let mut stack = Vec::new();
         for r in &self.regions {
-            for c in &r.cells {
+            for c in r.cells() {
                 if c.subtree < REMOTE && owns(r.region, c.super_cell) && !keep[c.subtree as usize] {
                     stack.push(NodeId(c.subtree));
                     while let Some(n) = stack.pop() {
@@ -94,46 +94,37 @@ impl CellStructure {
         let mut regions = self.regions.clone();
         for r in &mut regions {
             let region = r.region;
-            r.remote_hull = vec![EMPTY_HULL; r.cells.len()];
-            for (k, c) in r.cells.iter_mut().enumerate() {
-                if c.subtree >= REMOTE {
-                    continue;
-                }
-                if !owns(region, c.super_cell) {
-                    r.remote_hull[k] = self.leaf_hull(c.subtree);
-                    c.subtree = REMOTE;
-                    continue;
-                }
-                let root = new_id[c.subtree as usize];
-                if leaf_span[root as usize] == [0, 0] {
-                    let [a, b] = self.leaf_span[c.subtree as usize];
-                    let start = subtree_leaves.len() as u32;
-                    subtree_leaves.extend(self.subtree_leaves[a as usize..b as usize].iter().map(
-                        |l| SubtreeLeaf {
-                            node: new_id[l.node as usize],
-                            prim: prims[&l.prim],
-                            ..*l
-                        },
-                    ));
-                    leaf_span[root as usize] = [start, subtree_leaves.len() as u32];
-                }
-                c.subtree = root;
-            }
-            // Super cells' primitive lists (global ids): only "empty or not"
-            // is read, for pixel areas, and only of owned super cells.
-            for (s, leaf) in r.partition.leaves.iter_mut().enumerate() {
-                if !owns(region, s as u32) {
-                    leaf.prims = Vec::new();
+            r.remote_hull = vec![Hull::EMPTY; r.cell_count()];
+            for s in 0..r.supers.len() as u32 {
+                let owned = owns(region, s);
+                for k in r.cells_of(s) {
+                    let t = r.subtree[k];
+                    if t >= REMOTE {
+                        continue;
+                    }
+                    if !owned {
+                        r.remote_hull[k] = Hull::around(&self.leaf_hull(t), &self.scene_box);
+                        r.subtree[k] = REMOTE;
+                        continue;
+                    }
+                    r.subtree[k] = self.renumber_subtree(
+                        t,
+                        &new_id,
+                        &prims,
+                        &mut leaf_span,
+                        &mut subtree_leaves,
+                    );
                 }
             }
+            // The BSP's leaves (rectangles, primitive lists, corner
+            // pointers) are the builder's: the walk reads `supers`.
+            r.partition.leaves = Vec::new();
         }
-        debug_assert!(
-            regions
+        debug_assert!(regions.iter().all(|r| {
+            r.subtree
                 .iter()
-                .all(|r| r.cells.iter().all(|c| c.subtree == NO_SUBTREE
-                    || c.subtree == REMOTE
-                    || (c.subtree as usize) < tree.nodes.len()))
-        );
+                .all(|&t| t == NO_SUBTREE || t == REMOTE || (t as usize) < tree.nodes.len())
+        }));
         let share = CellStructure {
             view: self.view,
             regions,
@@ -162,33 +153,188 @@ impl CellStructure {
         (share, local)
     }
 
+    /// The new root of an owned cell's subtree `t`, with its leaf list
+    /// copied (once per subtree) into the share's, renumbered.
+    fn renumber_subtree(
+        &self,
+        t: u32,
+        new_id: &[u32],
+        prims: &BTreeMap<u32, u32>,
+        leaf_span: &mut [[u32; 2]],
+        subtree_leaves: &mut Vec<SubtreeLeaf>,
+    ) -> u32 {
+        let root = new_id[t as usize];
+        if leaf_span[root as usize] == [0, 0] {
+            let [a, b] = self.leaf_span[t as usize];
+            let start = subtree_leaves.len() as u32;
+            subtree_leaves.extend(self.subtree_leaves[a as usize..b as usize].iter().map(|l| {
+                SubtreeLeaf {
+                    node: new_id[l.node as usize],
+                    prim: prims[&l.prim],
+                    ..*l
+                }
+            }));
+            leaf_span[root as usize] = [start, subtree_leaves.len() as u32];
+        }
+        root
+    }
+
     /// The hull of the culling boxes of the leaves of the subtree rooted at
-    /// `root`, rounded outwards to f32 and padded. Every boundary the
-    /// subtree can return is a crossing of a leaf whose culling box the ray
-    /// meets, and lies on the part of that leaf's surface that survives the
-    /// operators (the leaf's minimal box, Algorithm 1): inside the hull.
-    /// The pad (relative 1e-6 of the hull's largest coordinate) covers the
-    /// rounding of computed crossings, which the machine tests check
-    /// against a single node on every bundled and on random scenes.
-    fn leaf_hull(&self, root: u32) -> [f32; 6] {
+    /// `root`. Every boundary the subtree can return is a crossing of a
+    /// leaf whose culling box the ray meets, and lies on the part of that
+    /// leaf's surface that survives the operators (the leaf's minimal box,
+    /// Algorithm 1): inside the hull.
+    fn leaf_hull(&self, root: u32) -> Aabb {
         let [a, b] = self.leaf_span[root as usize];
-        let hull = self.subtree_leaves[a as usize..b as usize]
+        self.subtree_leaves[a as usize..b as usize]
             .iter()
-            .fold(Aabb::EMPTY, |h, l| h.union(&l.cull));
-        if hull.is_empty() {
-            return EMPTY_HULL;
-        }
-        let (lo, hi) = (hull.min.to_array(), hull.max.to_array());
-        let scale = lo.iter().chain(&hi).fold(1.0f64, |m, v| m.max(v.abs()));
-        let pad = scale * 1e-6;
-        let mut out = [0f32; 6];
-        for i in 0..3 {
-            out[i] = ((lo[i] - pad) as f32).next_down();
-            out[i + 3] = ((hi[i] + pad) as f32).next_up();
-        }
-        out
+            .fold(Aabb::EMPTY, |h, l| h.union(&l.cull))
     }
 }
 
-/// A hull no ray meets (min above max).
-const EMPTY_HULL: [f32; 6] = [1.0, 1.0, 1.0, -1.0, -1.0, -1.0];
+/// A box held in 12 bytes: each bound as a 16-bit fraction of the scene
+/// box (`CellStructure::scene_box`), rounded outwards and widened by one
+/// step, so that the box it stands for (`Hull::bounds`) contains the one
+/// it was made from. A node keeps one per cell held elsewhere; against
+/// the 24 bytes of f32 bounds this is a quarter of a share's skeleton.
+/// The step (1/65535 of the scene box, a pixel's width or so for a scene
+/// filling a 1024-pixel image) only ever lets a ray through to the owner
+/// that a tighter box would have walked past.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct Hull {
+    lo: [u16; 3],
+    hi: [u16; 3],
+}
+
+impl Hull {
+    /// A hull no ray meets.
+    pub const EMPTY: Hull = Hull {
+        lo: [u16::MAX; 3],
+        hi: [0; 3],
+    };
+
+    const STEPS: f64 = u16::MAX as f64;
+
+    /// The hull of `b`, padded by a relative 1e-6 of its largest
+    /// coordinate for the rounding of computed crossings (the machine
+    /// tests check the walk against a single node on every bundled and on
+    /// random scenes), on the scale of box `scene`.
+    pub fn around(b: &Aabb, scene: &Aabb) -> Hull {
+        if b.is_empty() || scene.is_empty() {
+            return Hull::EMPTY;
+        }
+        let (lo, hi) = (b.min.to_array(), b.max.to_array());
+        let pad = lo.iter().chain(&hi).fold(1.0f64, |m, v| m.max(v.abs())) * 1e-6;
+        let (lo, hi) = (lo.map(|v| v - pad), hi.map(|v| v + pad));
+        let (s0, s1) = (scene.min.to_array(), scene.max.to_array());
+        let mut h = Hull {
+            lo: [0; 3],
+            hi: [0; 3],
+        };
+        for i in 0..3 {
+            let ext = s1[i] - s0[i];
+            let frac = |v: f64| {
+                if ext > 0.0 && ext.is_finite() {
+                    (v - s0[i]) / ext * Hull::STEPS
+                } else {
+                    f64::NAN
+                }
+            };
+            let (a, z) = (frac(lo[i]), frac(hi[i]));
+            // NaN (a degenerate or infinite axis) takes the whole axis.
+            h.lo[i] = if a.is_nan() {
+                0
+            } else {
+                (a.floor() - 1.0).clamp(0.0, Hull::STEPS) as u16
+            };
+            h.hi[i] = if z.is_nan() {
+                u16::MAX
+            } else {
+                (z.ceil() + 1.0).clamp(0.0, Hull::STEPS) as u16
+            };
+        }
+        h
+    }
+
+    /// The box the hull stands for, or None for the empty hull. A bound at
+    /// the end of the scale stands for everything beyond it, so that a
+    /// hull is never smaller than the box it was made from, whatever the
+    /// rounding of the scale.
+    pub fn bounds(&self, scene: &Aabb) -> Option<Aabb> {
+        if (0..3).any(|i| self.lo[i] > self.hi[i]) {
+            return None;
+        }
+        let (s0, s1) = (scene.min.to_array(), scene.max.to_array());
+        let mut lo = [0.0; 3];
+        let mut hi = [0.0; 3];
+        for i in 0..3 {
+            let step = (s1[i] - s0[i]) / Hull::STEPS;
+            lo[i] = if self.lo[i] == 0 {
+                f64::NEG_INFINITY
+            } else {
+                s0[i] + self.lo[i] as f64 * step
+            };
+            hi[i] = if self.hi[i] == u16::MAX {
+                f64::INFINITY
+            } else {
+                s0[i] + self.hi[i] as f64 * step
+            };
+        }
+        Some(Aabb {
+            min: Vec3::from_array(lo),
+            max: Vec3::from_array(hi),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn contains(outer: &Aabb, inner: &Aabb) -> bool {
+        (0..3).all(|i| outer.min[i] <= inner.min[i] && outer.max[i] >= inner.max[i])
+    }
+
+    #[test]
+    fn a_hull_contains_its_box_and_is_not_much_larger() {
+        let scene = Aabb::new(Vec3::new(-3.0, 1e6, -1e-3), Vec3::new(7.0, 1e6 + 2.0, 1e-3));
+        let mut x = 12345u64;
+        let mut u = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for _ in 0..2000 {
+            let p = |u: f64, i: usize| scene.min[i] + u * (scene.max[i] - scene.min[i]);
+            let (a, b) = ([u(), u(), u()], [u(), u(), u()]);
+            let lo = Vec3::from_array(std::array::from_fn(|i| p(a[i].min(b[i]), i)));
+            let hi = Vec3::from_array(std::array::from_fn(|i| p(a[i].max(b[i]), i)));
+            let b = Aabb::new(lo, hi);
+            let h = Hull::around(&b, &scene).bounds(&scene).expect("not empty");
+            assert!(contains(&h, &b), "{h:?} does not contain {b:?}");
+            // Within a few steps of the scale and the pad (of the largest
+            // coordinate) on every axis.
+            let big = b.min.abs().max(b.max.abs()).max_element().max(1.0);
+            for i in 0..3 {
+                let step = (scene.max[i] - scene.min[i]) / Hull::STEPS;
+                let slack = 4.0 * step + 2e-6 * big;
+                if h.min[i].is_finite() {
+                    assert!(b.min[i] - h.min[i] <= slack, "axis {i}: {h:?} {b:?}");
+                }
+                if h.max[i].is_finite() {
+                    assert!(h.max[i] - b.max[i] <= slack, "axis {i}: {h:?} {b:?}");
+                }
+            }
+        }
+        // Boxes beyond the scale and degenerate scales take whole axes.
+        let wide = Aabb::new(Vec3::splat(-1e9), Vec3::splat(1e9));
+        let h = Hull::around(&wide, &scene).bounds(&scene).unwrap();
+        assert!(contains(&h, &wide));
+        let flat = Aabb::new(Vec3::ZERO, Vec3::new(1.0, 1.0, 0.0));
+        let h = Hull::around(&flat, &flat).bounds(&flat).unwrap();
+        assert!(contains(&h, &flat) && h.min.z == f64::NEG_INFINITY);
+        assert_eq!(Hull::around(&Aabb::EMPTY, &scene), Hull::EMPTY);
+        assert_eq!(Hull::EMPTY.bounds(&scene), None);
+    }
+}

@@ -16,6 +16,7 @@
 
 use super::bsp::stitch;
 use super::projection::{CamRay, Region, contains};
+use super::share::Hull;
 use super::{CellStructure, REMOTE, RegionCells, SubtreeLeaf};
 use crate::csg::{Crossing, EvalCounts, Evaluator, NodeId, PrimHits, PrimId};
 use crate::geom::{Aabb, Ray, Vec3};
@@ -82,7 +83,7 @@ impl CellStructure {
     /// the cell it enters there (section 7, figures 11-13).
     pub fn step(&self, rr: &RegionRay, c: CellRef, t_in: f64) -> (f64, Step) {
         let rc = self.region(rr.region);
-        let s = rc.cells[c.cell as usize].super_cell;
+        let s = rc.super_cell_of(c.cell);
         let (t_out, next) = rc.exit(rr, s, c.cell, t_in);
         let next = match next {
             Some((_, k)) => Step::Next(
@@ -159,7 +160,6 @@ impl RegionCells {
     #[inline(always)]
     fn exit_in<const FRONT: bool>(&self, rr: &RegionRay, s: u32, k: u32, t_in: f64) -> (f64, Face) {
         let rect = &self.supers[s as usize].rect;
-        let cell = &self.cells[k as usize];
         let (o, d) = (rr.cam.o, rr.cam.d);
         // A side plane's crossing, or infinity for none (parallel, at
         // infinity, or, in front, the plane's mirror half behind the eye).
@@ -197,7 +197,11 @@ impl RegionCells {
             }
         }
         if rr.m[2] != 0.0 {
-            let z = if rr.m[2] > 0.0 { cell.zhi } else { cell.zlo };
+            let z = if rr.m[2] > 0.0 {
+                self.zhi(s, k)
+            } else {
+                self.zlo[k as usize]
+            };
             let t = (z - o.z) * rr.inv_dz;
             if z.is_finite() && t.is_finite() && t < t_out {
                 t_out = t;
@@ -219,7 +223,6 @@ impl RegionCells {
         t_out: f64,
         face: Face,
     ) -> Option<(u32, u32)> {
-        let cell = &self.cells[k as usize];
         let (o, d) = (rr.cam.o, rr.cam.d);
         match face {
             3 => None,
@@ -245,7 +248,8 @@ impl RegionCells {
                     let (sx, sy, z) = rr.cam.screen_at(rr.region, t_out);
                     (if other == 0 { sx } else { sy }, z)
                 };
-                self.side_neighbour(rr, s, axis, rr.m[axis] > 0.0, q, z, cell.zlo, cell.zhi)
+                let (zlo, zhi) = (self.zlo[k as usize], self.zhi(s, k));
+                self.side_neighbour(rr, s, axis, rr.m[axis] > 0.0, q, z, zlo, zhi)
             }
         }
     }
@@ -389,17 +393,14 @@ impl SlabRay {
         (t0 <= t1).then_some((t0, t1))
     }
 
-    /// Whether the ray's part `[t_in, t_end]` surely misses `hull` (an f32
-    /// box as in `RegionCells::remote_hull`). The interval is widened by a
-    /// relative 1e-9 so that rounding only ever keeps a cell.
-    fn misses_hull(&self, hull: &[f32; 6], ray: &Ray, t_in: f64, t_end: f64) -> bool {
-        let b = Aabb {
-            min: Vec3::new(hull[0].into(), hull[1].into(), hull[2].into()),
-            max: Vec3::new(hull[3].into(), hull[4].into(), hull[5].into()),
-        };
-        if b.min.x > b.max.x {
+    /// Whether the ray's part `[t_in, t_end]` surely misses `hull` (as in
+    /// `RegionCells::remote_hull`, on the scale of `scene`). The interval
+    /// is widened by a relative 1e-9 so that rounding only ever keeps a
+    /// cell.
+    fn misses_hull(&self, hull: &Hull, scene: &Aabb, ray: &Ray, t_in: f64, t_end: f64) -> bool {
+        let Some(b) = hull.bounds(scene) else {
             return true;
-        }
+        };
         match self.interval(&b, ray) {
             None => true,
             Some((b0, b1)) => {
@@ -855,23 +856,27 @@ impl CellTracer<'_> {
             self.hint[region as usize] = s;
             // The walk is monotone in every screen axis and depth, so it
             // ends; the guard only turns a bug into a miss, never a hang.
-            let mut guard = rc.cells.len() + 2;
+            let mut guard = rc.cell_count() + 2;
             loop {
                 guard -= 1;
                 debug_assert!(guard > 0, "cell walk did not end");
                 if guard == 0 {
                     break;
                 }
-                let subtree = rc.cells[k as usize].subtree;
+                let subtree = rc.subtree[k as usize];
                 let (t_out, face) = rc.leave(&rr, s, k, t_in);
                 let t_end = t_out.min(hi);
                 // A cell held elsewhere is walked through here when the
                 // ray's part in it misses the hull of its content: the
                 // owner would find nothing, and the ray saves a message.
                 if subtree == REMOTE
-                    && !self
-                        .slab
-                        .misses_hull(&rc.remote_hull[k as usize], ray, t_in, t_end)
+                    && !self.slab.misses_hull(
+                        &rc.remote_hull[k as usize],
+                        &self.cs.scene_box,
+                        ray,
+                        t_in,
+                        t_end,
+                    )
                 {
                     return Walk::Remote(WalkPoint {
                         region,

@@ -210,6 +210,9 @@ pub struct NodeReport {
     pub primitives: u64,
     /// Bytes of the share (cells, subtrees, primitives, mailboxes).
     pub memory_bytes: u64,
+    /// Of those, the cell structure's (`CellStructure::bytes`: the
+    /// skeleton every node holds, and the owned cells' subtrees).
+    pub structure_bytes: u64,
     pub memory_budget_bytes: u64,
     pub peak_memory_bytes: u64,
     /// Rays traced here, whole or in part.

@@ -258,6 +258,7 @@ impl<'a> Node<'a> {
             super_cells,
             primitives: share.scene.primitives.len() as u64,
             memory_bytes: memory,
+            structure_bytes: share.cells.bytes() as u64,
             memory_budget_bytes: share.budget,
             peak_memory_bytes: memory,
             ..Default::default()

@@ -39,6 +39,15 @@ pub struct ScaleRow {
     pub virtual_seconds_equal_area: f64,
     pub peak_memory_bytes: u64,
     pub budget_bytes: u64,
+    /// Rays created (every one finished once), and the bytes on the wire
+    /// per ray.
+    pub rays: u64,
+    pub bytes_per_ray: f64,
+    /// The cell structure held over all nodes (`NodeReport::structure_bytes`
+    /// summed), and its ratio to the whole structure's (one node's at
+    /// d = 0): what distributing the cells costs in memory.
+    pub structure_bytes: u64,
+    pub structure_ratio: f64,
 }
 
 /// Parses `--dims`: `A..B` (inclusive) or a list `0,2,5`.
@@ -98,6 +107,12 @@ pub fn measure(
     let mut done = 0;
     let mut first: Option<Film> = None;
     let mut rows: Vec<ScaleRow> = Vec::new();
+    // The whole structure's bytes: a one-node share holds all of it.
+    let whole_structure = {
+        let plan =
+            machine::host::Plan::new(scene, &topo.clone().with_overrides(Some(0), None)?, opts);
+        plan.shares[0].0.bytes() as u64
+    };
     let mut check = |film: &Film, d: u32| -> Result<()> {
         match &first {
             None => first = Some(film.clone()),
@@ -146,6 +161,7 @@ pub fn measure(
         let n0 = rows.first().map_or(1usize << d, |r| r.nodes) as f64;
         let nodes = 1usize << d;
         let scale = nodes as f64 / n0;
+        let structure_bytes: u64 = rep.per_node.iter().map(|n| n.structure_bytes).sum();
         rows.push(ScaleRow {
             dimension: d,
             nodes,
@@ -169,12 +185,16 @@ pub fn measure(
                 .max()
                 .unwrap_or(0),
             budget_bytes: t.node_memory,
+            rays: rep.rays.total(),
+            bytes_per_ray: rep.message_bytes as f64 / rep.rays.total().max(1) as f64,
+            structure_bytes,
+            structure_ratio: structure_bytes as f64 / whole_structure.max(1) as f64,
         });
     }
     Ok(rows)
 }
 
-const HEADER: [&str; 18] = [
+const HEADER: [&str; 22] = [
     "dimension",
     "nodes",
     "wall_seconds",
@@ -193,9 +213,13 @@ const HEADER: [&str; 18] = [
     "peak_memory_bytes",
     "budget_bytes",
     "peak_over_budget",
+    "rays",
+    "bytes_per_ray",
+    "structure_bytes",
+    "structure_ratio",
 ];
 
-fn fields(r: &ScaleRow) -> [String; 18] {
+fn fields(r: &ScaleRow) -> [String; 22] {
     [
         r.dimension.to_string(),
         r.nodes.to_string(),
@@ -218,6 +242,10 @@ fn fields(r: &ScaleRow) -> [String; 18] {
             "{:.3}",
             r.peak_memory_bytes as f64 / r.budget_bytes.max(1) as f64
         ),
+        r.rays.to_string(),
+        format!("{:.1}", r.bytes_per_ray),
+        r.structure_bytes.to_string(),
+        format!("{:.3}", r.structure_ratio),
     ]
 }
 
@@ -234,7 +262,7 @@ pub fn csv(rows: &[ScaleRow]) -> String {
 
 /// The rows as an aligned text table.
 pub fn table(rows: &[ScaleRow]) -> String {
-    let cols = [0usize, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12];
+    let cols = [0usize, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 19, 21];
     let cells: Vec<Vec<String>> = std::iter::once(HEADER.map(String::from).to_vec())
         .chain(rows.iter().map(|r| fields(r).to_vec()))
         .map(|row| cols.iter().map(|&c| row[c].clone()).collect())

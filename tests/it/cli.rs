@@ -485,6 +485,7 @@ fn inspect_prints_the_subdivision_and_every_nodes_share() {
         "structure bytes",
         "replicated scene",
         "with 32 nodes",
+        "structure held",
     ] {
         assert!(out.contains(key), "no {key:?} in\n{out}");
     }
@@ -492,7 +493,7 @@ fn inspect_prints_the_subdivision_and_every_nodes_share() {
     let rows: Vec<Vec<&str>> = out
         .lines()
         .map(|l| l.split_whitespace().collect::<Vec<_>>())
-        .filter(|w| w.len() == 6 && w[0].parse::<u32>().is_ok())
+        .filter(|w| w.len() == 7 && w[0].parse::<u32>().is_ok())
         .collect();
     assert_eq!(rows.len(), 32, "{out}");
     // The jagged ball's 36 super cells leave some of 32 nodes without one.
@@ -520,5 +521,8 @@ fn inspect_prints_the_subdivision_and_every_nodes_share() {
     for n in nodes {
         let m = n["memory_bytes"].as_u64().unwrap();
         assert!(m < replicated && m <= budget, "{n}");
+        // The structure is part of the share.
+        let st = n["structure_bytes"].as_u64().unwrap();
+        assert!(st > 0 && st < m, "{n}");
     }
 }

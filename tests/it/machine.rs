@@ -196,7 +196,7 @@ fn a_refusal_names_what_would_fit() {
     };
     let on = |d: u32, bytes: u64| topo(d).with_overrides(None, Some(bytes)).unwrap();
     // A budget below the skeleton every node holds: no dimension helps.
-    let msg = refusal(&on(2, 64 << 10));
+    let msg = refusal(&on(2, 8 << 10));
     assert!(msg.contains("skeleton") && !msg.contains("--dim"), "{msg}");
     // Room for the skeleton, not for the heaviest super cell.
     let msg = refusal(&on(2, 256 << 10));
