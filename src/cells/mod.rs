@@ -28,7 +28,16 @@ pub const NO_SUBTREE: u32 = u32::MAX;
 
 /// The cell holds primitives, but its subtree lives on another node of the
 /// machine (`CellStructure::restrict`): a walk that reaches it stops there.
-pub const REMOTE: u32 = u32::MAX - 1;
+/// A remote cell's subtree is `REMOTE + i`, `i` the index of its hull in
+/// `RegionCells::remote_hull` (so that empty and owned cells keep none);
+/// subtree roots are below `REMOTE`.
+pub const REMOTE: u32 = 1 << 31;
+
+/// Whether a cell's subtree field says the cell is held elsewhere.
+#[inline]
+pub fn is_remote(subtree: u32) -> bool {
+    (REMOTE..NO_SUBTREE).contains(&subtree)
+}
 
 /// A cell: a slab `[zlo, zhi)` in depth of a super cell (section 3.3), as
 /// `RegionCells::cell` puts it together. The structure keeps only what the
@@ -40,7 +49,7 @@ pub struct Cell {
     pub zhi: f64,
     pub super_cell: u32,
     /// Root of the cell's CSG subtree in `CellStructure::subtrees`,
-    /// `NO_SUBTREE`, or `REMOTE`.
+    /// `NO_SUBTREE`, or remote (`is_remote`).
     pub subtree: u32,
 }
 
@@ -75,16 +84,18 @@ pub struct RegionCells {
     /// Cells of super cell `s`: `first_cell[s]..first_cell[s + 1]`, sorted
     /// by depth.
     pub first_cell: Vec<u32>,
-    /// Per cell, the near end of its depth slab.
-    pub zlo: Vec<f64>,
+    /// Per cell, the near end of its depth slab. Depth cuts are chosen as
+    /// f32 values (`depth_partition`), so 4 bytes hold them exactly.
+    pub zlo: Vec<f32>,
     /// Per cell, the root of its CSG subtree in `CellStructure::subtrees`,
-    /// `NO_SUBTREE` (empty) or `REMOTE` (held by another node).
+    /// `NO_SUBTREE` (empty) or remote (held by another node, `REMOTE`).
     pub subtree: Vec<u32>,
     /// Per super cell, what the walk reads (the partition's leaves in a
     /// compact copy).
     pub supers: Vec<SuperCell>,
-    /// In a node's share (`CellStructure::restrict`), per cell: for a cell
-    /// held elsewhere, the hull of its subtree's leaves' culling boxes,
+    /// In a node's share (`CellStructure::restrict`), for each cell held
+    /// elsewhere (in the order of its `REMOTE + i`), the hull of its
+    /// subtree's leaves' culling boxes,
     /// quantised outwards on the scene box (`share::Hull`); empty on a
     /// whole structure. A ray whose part in such a cell misses the hull
     /// cannot meet anything there, so the walk goes on without sending the
@@ -108,7 +119,7 @@ impl RegionCells {
     pub fn zhi(&self, s: u32, k: u32) -> f64 {
         let next = k as usize + 1;
         if next < self.first_cell[s as usize + 1] as usize {
-            self.zlo[next]
+            self.zlo[next].into()
         } else {
             self.region.depth_range().1
         }
@@ -123,7 +134,7 @@ impl RegionCells {
     pub fn cell(&self, k: u32) -> Cell {
         let s = self.super_cell_of(k);
         Cell {
-            zlo: self.zlo[k as usize],
+            zlo: self.zlo[k as usize].into(),
             zhi: self.zhi(s, k),
             super_cell: s,
             subtree: self.subtree[k as usize],
@@ -141,7 +152,10 @@ impl RegionCells {
     pub fn cell_at_depth(&self, s: u32, z: f64, m: f64) -> u32 {
         let r = self.cells_of(s);
         let zlo = &self.zlo[r.clone()];
-        let before = |lo: f64| lo < z || (lo == z && m >= 0.0);
+        let before = |lo: f32| {
+            let lo = f64::from(lo);
+            lo < z || (lo == z && m >= 0.0)
+        };
         // Super cells have few cells: a scan, short of a binary search.
         let k = if zlo.len() <= 8 {
             zlo.iter().take_while(|&&lo| before(lo)).count()
@@ -314,7 +328,8 @@ impl CellStructure {
                                 .map_or(NO_SUBTREE, |n| n.0)
                         })
                     };
-                    zlos.push(zlo);
+                    zlos.push(zlo as f32);
+                    debug_assert_eq!(f64::from(zlo as f32), zlo, "a depth cut is an f32");
                     subtree_of.push(subtree);
                     prim_counts.push(cell_prims.len());
                 });
@@ -339,6 +354,12 @@ impl CellStructure {
             }
         });
         let (leaf_span, subtree_leaves) = subtree_leaf_lists(&subtrees, memo.values().copied());
+        // Roots are below REMOTE: 2^31 subtree nodes would be hundreds of
+        // GB, past any memory this runs in.
+        assert!(
+            subtrees.nodes.len() < REMOTE as usize,
+            "subtree arena too large"
+        );
         let mut cs = CellStructure {
             view,
             regions,
@@ -406,7 +427,7 @@ impl CellStructure {
             b += r.subtree.len() * 4
                 + r.first_cell.len() * 4
                 + r.supers.len() * size_of::<SuperCell>()
-                + r.zlo.len() * 8
+                + r.zlo.len() * 4
                 + r.remote_hull.len() * size_of::<share::Hull>();
             b += r.partition.nodes.len() * size_of::<bsp::BspNode>();
             b += r
@@ -507,6 +528,15 @@ fn depth_partition(
     extents: &[(u32, f64, f64)],
     emit: &mut dyn FnMut(&[u32], f64, f64),
 ) {
+    // Extents widened to f32 values, so that every cut (an extent's end)
+    // is an f32 and a cell's depth is held in 4 bytes on every node that
+    // holds the skeleton. Widening only ever adds a primitive to a cell
+    // it grazes: exact.
+    let extents: Vec<(u32, f64, f64)> = extents
+        .iter()
+        .map(|&(p, z0, z1)| (p, f32_below(z0), f32_above(z1)))
+        .collect();
+    let extents = &extents[..];
     let (rz0, rz1) = region.depth_range();
     let zmin = extents
         .iter()
@@ -535,20 +565,29 @@ fn depth_partition(
     cost.split(extents, &idx, zmin, zmax, &mut cuts);
     cuts.push(zmax);
     let mut prims = Vec::new();
-    let mut cell = |lo: f64, hi: f64, prims: &mut Vec<u32>| {
+    let mut bounds = vec![rz0];
+    for c in cuts.into_iter().chain([rz1]) {
+        if c > *bounds.last().expect("rz0") {
+            bounds.push(c);
+        }
+    }
+    for w in bounds.windows(2) {
+        let (lo, hi) = (w[0], w[1]);
         prims.clear();
         prims.extend(extents.iter().filter(|e| e.1 < hi && e.2 > lo).map(|e| e.0));
-        emit(prims, lo, hi);
-    };
-    if rz0 < zmin {
-        cell(rz0, zmin, &mut prims);
+        emit(&prims, lo, hi);
     }
-    for w in cuts.windows(2) {
-        cell(w[0], w[1], &mut prims);
-    }
-    if zmax < rz1 {
-        cell(zmax, rz1, &mut prims);
-    }
+}
+
+/// The largest f32 at or below `x`, and the smallest at or above it.
+fn f32_below(x: f64) -> f64 {
+    let f = x as f32;
+    f64::from(if f64::from(f) > x { f.next_down() } else { f })
+}
+
+fn f32_above(x: f64) -> f64 {
+    let f = x as f32;
+    f64::from(if f64::from(f) < x { f.next_up() } else { f })
 }
 
 /// The cost model of the depth partition, a surface-area heuristic along

@@ -94,7 +94,7 @@ impl CellStructure {
         let mut regions = self.regions.clone();
         for r in &mut regions {
             let region = r.region;
-            r.remote_hull = vec![Hull::EMPTY; r.cell_count()];
+            r.remote_hull = Vec::new();
             for s in 0..r.supers.len() as u32 {
                 let owned = owns(region, s);
                 for k in r.cells_of(s) {
@@ -103,8 +103,9 @@ impl CellStructure {
                         continue;
                     }
                     if !owned {
-                        r.remote_hull[k] = Hull::around(&self.leaf_hull(t), &self.scene_box);
-                        r.subtree[k] = REMOTE;
+                        r.subtree[k] = REMOTE + r.remote_hull.len() as u32;
+                        r.remote_hull
+                            .push(Hull::around(&self.leaf_hull(t), &self.scene_box));
                         continue;
                     }
                     r.subtree[k] = self.renumber_subtree(
@@ -116,14 +117,18 @@ impl CellStructure {
                     );
                 }
             }
-            // The BSP's leaves (rectangles, primitive lists, corner
-            // pointers) are the builder's: the walk reads `supers`.
+            // The BSP is the builder's: the walk reads `supers`, and finds
+            // a point's super cell along their corner stitches
+            // (`RegionCells::super_cell_at`).
             r.partition.leaves = Vec::new();
+            r.partition.nodes = Vec::new();
         }
         debug_assert!(regions.iter().all(|r| {
-            r.subtree
-                .iter()
-                .all(|&t| t == NO_SUBTREE || t == REMOTE || (t as usize) < tree.nodes.len())
+            r.subtree.iter().all(|&t| {
+                t == NO_SUBTREE
+                    || super::is_remote(t) && ((t - REMOTE) as usize) < r.remote_hull.len()
+                    || (t as usize) < tree.nodes.len()
+            })
         }));
         let share = CellStructure {
             view: self.view,

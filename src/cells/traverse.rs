@@ -17,7 +17,7 @@
 use super::bsp::stitch;
 use super::projection::{CamRay, Region, contains};
 use super::share::Hull;
-use super::{CellStructure, REMOTE, RegionCells, SubtreeLeaf};
+use super::{CellStructure, REMOTE, RegionCells, SubtreeLeaf, is_remote};
 use crate::csg::{Crossing, EvalCounts, Evaluator, NodeId, PrimHits, PrimId};
 use crate::geom::{Aabb, Ray, Vec3};
 use crate::render::TraceCounters;
@@ -106,16 +106,38 @@ impl RegionCells {
     #[inline]
     fn locate(&self, rr: &RegionRay, t: f64, hint: u32) -> (u32, u32) {
         let (sx, sy, z) = rr.cam.screen_at(rr.region, t);
-        let s = match self.supers.get(hint as usize) {
-            Some(h)
-                if contains(h.rect.x0, h.rect.x1, sx, rr.m[0])
-                    && contains(h.rect.y0, h.rect.y1, sy, rr.m[1]) =>
-            {
-                hint
-            }
-            _ => self.partition.locate(sx, sy, rr.m[0], rr.m[1]),
-        };
+        let s = self.super_cell_at([sx, sy], [rr.m[0], rr.m[1]], hint);
         (s, self.cell_at_depth(s, z, rr.m[2]))
+    }
+
+    /// The super cell containing screen point `p` for a ray moving with
+    /// signs `m` (ties as `contains` breaks them): `hint` if it does, else
+    /// by the BSP, or, in a node's share, which has no BSP, by Ousterhout's
+    /// point finding along the corner stitches from `hint`. Both give the
+    /// one super cell whose half-open rectangle holds the point: the
+    /// leaves' rectangles are the BSP's cuts, with the same ties.
+    #[inline]
+    pub fn super_cell_at(&self, p: [f64; 2], m: [f64; 2], hint: u32) -> u32 {
+        let holds = |s: u32| {
+            let r = &self.supers[s as usize].rect;
+            contains(r.x0, r.x1, p[0], m[0]) && contains(r.y0, r.y1, p[1], m[1])
+        };
+        if (hint as usize) < self.supers.len() && holds(hint) {
+            return hint;
+        }
+        if !self.partition.nodes.is_empty() {
+            return self.partition.locate(p[0], p[1], m[0], m[1]);
+        }
+        let start = if (hint as usize) < self.supers.len() {
+            hint
+        } else {
+            0
+        };
+        self.walk_to(start, p, m)
+            // Only a point no rectangle holds (NaN) gets here; the BSP
+            // would send it to some leaf, and so does this.
+            .or_else(|| (0..self.supers.len() as u32).find(|&s| holds(s)))
+            .unwrap_or(0)
     }
 
     /// Where the ray leaves cell `k` of super cell `s` (never before
@@ -200,7 +222,7 @@ impl RegionCells {
             let z = if rr.m[2] > 0.0 {
                 self.zhi(s, k)
             } else {
-                self.zlo[k as usize]
+                self.zlo[k as usize].into()
             };
             let t = (z - o.z) * rr.inv_dz;
             if z.is_finite() && t.is_finite() && t < t_out {
@@ -248,7 +270,7 @@ impl RegionCells {
                     let (sx, sy, z) = rr.cam.screen_at(rr.region, t_out);
                     (if other == 0 { sx } else { sy }, z)
                 };
-                let (zlo, zhi) = (self.zlo[k as usize], self.zhi(s, k));
+                let (zlo, zhi) = (self.zlo[k as usize].into(), self.zhi(s, k));
                 self.side_neighbour(rr, s, axis, rr.m[axis] > 0.0, q, z, zlo, zhi)
             }
         }
@@ -305,7 +327,9 @@ impl RegionCells {
         let mut p = [0.0; 2];
         p[axis] = if high { rect.hi(axis) } else { rect.lo(axis) };
         p[other] = q;
-        let n = self.walk_to(s, p, [rr.m[0], rr.m[1]])?;
+        let n = self.walk_to(s, p, [rr.m[0], rr.m[1]]);
+        debug_assert!(n.is_some(), "corner-stitch point finding left the plane");
+        let n = n?;
         Some((n, self.cell_at_depth(n, clamp(z, zlo, zhi), rr.m[2])))
     }
 
@@ -339,7 +363,6 @@ impl RegionCells {
                 break;
             }
         }
-        debug_assert!(false, "corner-stitch point finding left the plane");
         None
     }
 }
@@ -739,12 +762,17 @@ impl CellStructure {
     /// The front super cell a primary ray (from the eye) stays in: the
     /// pixel area its sample belongs to (section 3.2).
     pub fn primary_super_cell(&self, ray: &Ray) -> u32 {
+        self.primary_super_cell_from(ray, u32::MAX)
+    }
+
+    /// `primary_super_cell`, trying super cell `hint` first (and, in a
+    /// share, finding the super cell from it).
+    pub fn primary_super_cell_from(&self, ray: &Ray, hint: u32) -> u32 {
         let cam = self.view.ray(ray);
         let rr = RegionRay::new(Region::Front, cam);
         let (sx, sy, _) = cam.screen_at(Region::Front, 0.0);
         self.region(Region::Front)
-            .partition
-            .locate(sx, sy, rr.m[0], rr.m[1])
+            .super_cell_at([sx, sy], [rr.m[0], rr.m[1]], hint)
     }
 }
 
@@ -869,9 +897,9 @@ impl CellTracer<'_> {
                 // A cell held elsewhere is walked through here when the
                 // ray's part in it misses the hull of its content: the
                 // owner would find nothing, and the ray saves a message.
-                if subtree == REMOTE
+                if is_remote(subtree)
                     && !self.slab.misses_hull(
-                        &rc.remote_hull[k as usize],
+                        &rc.remote_hull[(subtree - REMOTE) as usize],
                         &self.cs.scene_box,
                         ray,
                         t_in,

@@ -950,6 +950,9 @@ struct Primaries {
     k: u32,
     pending: Option<(RayJob, u64, bool)>,
     generated: u64,
+    /// The super cell of the last sample: where the next one's is looked
+    /// for first.
+    last_super: u32,
 }
 
 impl Primaries {
@@ -973,6 +976,7 @@ impl Primaries {
             k: 0,
             pending: None,
             generated: 0,
+            last_super: 0,
         };
         if p.list.is_none() {
             let cam = CameraFrame::new(&share.scene, share.width, share.height);
@@ -1036,7 +1040,8 @@ impl Primaries {
             let (i, j) = (pixel % self.width, pixel / self.width);
             let (fx, fy) = sample_offset_from(pixel, k, self.spp, self.first_sample);
             let job = cam.primary(i, j, fx, fy, 1.0 / self.spp as f64);
-            let s = cs.primary_super_cell(&job.ray);
+            let s = cs.primary_super_cell_from(&job.ray, want.unwrap_or(self.last_super));
+            self.last_super = s;
             let mine = match want {
                 Some(w) => s == w,
                 None => self.owner[s as usize] == self.id,
