@@ -4,9 +4,21 @@
 //! and the codec can be swapped in this one file (bincode is unmaintained;
 //! 3.0.0 is a deliberate compile_error release, hence the pin to 2).
 //! Messages travel in envelopes of stamped frames (`append_stamped`).
+//!
+//! Paths travel in a compact form (`pack`, `unpack`) that leaves out what
+//! the receiving node can recompute exactly from what it already holds:
+//! a shadow ray's direction (its light's position minus its origin) and
+//! `t_max`, every ray's pixel (the path's sample says it), a walk point's
+//! super cell (its cell says it).
 
-use serde::Serialize;
 use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+
+use super::message::{Active, Path, Routed};
+use crate::cells::{CellStructure, Region, WalkPoint};
+use crate::geom::{Ray, Vec3};
+use crate::scene::Light;
+use crate::trace::{RayJob, RayKind};
 
 /// Variable-width integers: a path's sample number, fixed-point sums,
 /// counts and indices are mostly small. Against fixed-width integers they
@@ -100,6 +112,249 @@ pub fn decode_envelope<T: DeserializeOwned>(mut bytes: &[u8]) -> Result<Vec<(f64
     Ok(out)
 }
 
+/// What a node holds that lets paths leave out what it can recompute.
+pub struct PathContext<'a> {
+    pub lights: &'a [Light],
+    /// Samples per pixel of the pass: a sample's pixel is `sample / spp`.
+    pub spp: u32,
+    pub cells: &'a CellStructure,
+}
+
+/// A batch of paths as they travel (`pack`).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct WireBatch(Vec<WireRouted>);
+
+impl WireBatch {
+    /// The bytes the batch's paths will occupy once unpacked.
+    pub fn path_bytes(&self) -> usize {
+        self.0
+            .iter()
+            .map(|r| std::mem::size_of::<Path>() + r.stack.len() * std::mem::size_of::<RayJob>())
+            .sum()
+    }
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct WireRouted {
+    dest: u16,
+    hops: u8,
+    sample: u64,
+    origin: u16,
+    sum: [i64; 3],
+    /// `forks << 1 | leaf`.
+    flags: u32,
+    number: u32,
+    /// None for +0.0, the usual start.
+    t_min: Option<f64>,
+    at: Option<WireAt>,
+    active: WireJob,
+    stack: Vec<WireJob>,
+}
+
+/// A walk point without its super cell: `cell << 1 | region`.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
+struct WireAt {
+    cell: u32,
+    t_in: f64,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+enum WireJob {
+    /// A shadow ray of the path's pixel toward light `light`: its
+    /// direction is the light's position minus its origin, its `t_max` 1
+    /// (as `Shader::shade` makes them).
+    Shadow {
+        light: u32,
+        origin: [f64; 3],
+        depth: u8,
+        weight: [f32; 3],
+    },
+    /// Any other ray of the path's pixel; `t_max` None for infinity.
+    Ray {
+        kind: u8,
+        origin: [f64; 3],
+        dir: [f64; 3],
+        depth: u8,
+        weight: [f32; 3],
+        t_max: Option<f64>,
+    },
+    /// A ray of another pixel (the shader makes none; kept so that packing
+    /// never loses anything).
+    Whole(RayJob),
+}
+
+fn same(a: Vec3, b: Vec3) -> bool {
+    a.to_array()
+        .iter()
+        .zip(b.to_array())
+        .all(|(x, y)| x.to_bits() == y.to_bits())
+}
+
+fn kind_code(k: RayKind) -> u8 {
+    k.index() as u8
+}
+
+fn pack_job(j: &RayJob, pixel: u64, ctx: &PathContext) -> WireJob {
+    if u64::from(j.pixel) != pixel {
+        return WireJob::Whole(*j);
+    }
+    let origin = j.ray.origin.to_array();
+    if j.kind == RayKind::Shadow
+        && j.t_max.to_bits() == 1f64.to_bits()
+        && let Some(i) = ctx
+            .lights
+            .iter()
+            .position(|l| same(l.position - j.ray.origin, j.ray.dir))
+    {
+        return WireJob::Shadow {
+            light: i as u32,
+            origin,
+            depth: j.depth,
+            weight: j.weight,
+        };
+    }
+    WireJob::Ray {
+        kind: kind_code(j.kind),
+        origin,
+        dir: j.ray.dir.to_array(),
+        depth: j.depth,
+        weight: j.weight,
+        t_max: (j.t_max != f64::INFINITY).then_some(j.t_max),
+    }
+}
+
+fn unpack_job(w: WireJob, pixel: u32, ctx: &PathContext) -> Result<RayJob, String> {
+    Ok(match w {
+        WireJob::Shadow {
+            light,
+            origin,
+            depth,
+            weight,
+        } => {
+            let l = ctx
+                .lights
+                .get(light as usize)
+                .ok_or_else(|| format!("a shadow ray toward light {light}, which is not there"))?;
+            let origin = Vec3::from_array(origin);
+            RayJob {
+                ray: Ray::new(origin, l.position - origin),
+                kind: RayKind::Shadow,
+                pixel,
+                depth,
+                weight,
+                t_max: 1.0,
+            }
+        }
+        WireJob::Ray {
+            kind,
+            origin,
+            dir,
+            depth,
+            weight,
+            t_max,
+        } => RayJob {
+            ray: Ray::new(Vec3::from_array(origin), Vec3::from_array(dir)),
+            kind: *RayKind::ALL
+                .get(kind as usize)
+                .ok_or_else(|| format!("a ray of kind {kind}, which is none"))?,
+            pixel,
+            depth,
+            weight,
+            t_max: t_max.unwrap_or(f64::INFINITY),
+        },
+        WireJob::Whole(j) => j,
+    })
+}
+
+/// Paths in their wire form.
+pub fn pack(paths: &[Routed], ctx: &PathContext) -> WireBatch {
+    let spp = u64::from(ctx.spp.max(1));
+    WireBatch(
+        paths
+            .iter()
+            .map(|r| {
+                let p = &r.path;
+                let pixel = p.sample / spp;
+                let a = &p.active;
+                WireRouted {
+                    dest: r.dest,
+                    hops: r.hops,
+                    sample: p.sample,
+                    origin: p.origin,
+                    sum: p.sum,
+                    flags: u32::from(p.forks) << 1 | u32::from(p.leaf),
+                    number: a.number,
+                    t_min: (a.t_min.to_bits() != 0f64.to_bits()).then_some(a.t_min),
+                    at: a.at.map(|w| WireAt {
+                        cell: w.cell << 1 | (w.region == Region::Back) as u32,
+                        t_in: w.t_in,
+                    }),
+                    active: pack_job(&a.job, pixel, ctx),
+                    stack: p.stack.iter().map(|j| pack_job(j, pixel, ctx)).collect(),
+                }
+            })
+            .collect(),
+    )
+}
+
+/// The paths of a batch, exactly as they were packed; an error for a
+/// batch that names a light, kind or cell the node does not have.
+pub fn unpack(batch: WireBatch, ctx: &PathContext) -> Result<Vec<Routed>, String> {
+    let spp = u64::from(ctx.spp.max(1));
+    batch
+        .0
+        .into_iter()
+        .map(|w| {
+            let pixel = u32::try_from(w.sample / spp)
+                .map_err(|_| format!("sample {} is past every pixel", w.sample))?;
+            let at = match w.at {
+                None => None,
+                Some(a) => {
+                    let region = if a.cell & 1 == 1 {
+                        Region::Back
+                    } else {
+                        Region::Front
+                    };
+                    let cell = a.cell >> 1;
+                    let rc = ctx.cells.region(region);
+                    if cell as usize >= rc.cell_count() {
+                        return Err(format!("a path at cell {cell}, which is none"));
+                    }
+                    Some(WalkPoint {
+                        region,
+                        super_cell: rc.super_cell_of(cell),
+                        cell,
+                        t_in: a.t_in,
+                    })
+                }
+            };
+            let mut stack = Vec::with_capacity(w.stack.len());
+            for j in w.stack {
+                stack.push(unpack_job(j, pixel, ctx)?);
+            }
+            Ok(Routed {
+                dest: w.dest,
+                hops: w.hops,
+                path: Path {
+                    sample: w.sample,
+                    origin: w.origin,
+                    sum: w.sum,
+                    active: Active {
+                        job: unpack_job(w.active, pixel, ctx)?,
+                        number: w.number,
+                        t_min: w.t_min.unwrap_or(0.0),
+                        at,
+                    },
+                    stack,
+                    forks: u16::try_from(w.flags >> 1)
+                        .map_err(|_| format!("a path with {} forks", w.flags >> 1))?,
+                    leaf: w.flags & 1 == 1,
+                },
+            })
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -133,5 +388,110 @@ mod tests {
         assert_eq!((back[1].0, back[1].1[0].0), (4.0, 3));
         assert!(decode_envelope::<u8>(&[1, 2]).is_err());
         assert!(decode_envelope::<u8>(&env[..env.len() - 1]).is_err());
+    }
+
+    #[test]
+    fn paths_unpack_exactly_as_packed_and_smaller() {
+        use crate::cells::CellOptions;
+        use crate::scene::load::{SceneSyntax, parse_scene_str};
+        let scene = parse_scene_str(
+            "(camera: (eye: (0, -5, 0), look_at: (0, 0, 0), fov_y: 40, width: 8, height: 8),
+              lights: [(position: (0, 0, 5)), (position: (3, -1, 2))],
+              objects: [Sphere(center: (0, 0, 0), radius: 1)])",
+            SceneSyntax::Ron,
+            std::path::Path::new("t.ron"),
+        )
+        .unwrap();
+        let cells = CellStructure::build(&scene, 8, 8, CellOptions::default());
+        let ctx = PathContext {
+            lights: &scene.lights,
+            spp: 4,
+            cells: &cells,
+        };
+        let (sample, pixel) = (4 * 37 + 3, 37);
+        let o = Vec3::new(0.25, -1.0 / 3.0, 1e-300);
+        let job = |kind, dir: Vec3, pixel, t_max| RayJob {
+            ray: Ray::new(o, dir),
+            kind,
+            pixel,
+            depth: 2,
+            weight: [0.5, -0.0, f32::MIN_POSITIVE],
+            t_max,
+        };
+        let toward = |i: usize| scene.lights[i].position - o;
+        let back = cells.region(Region::Back);
+        let last = back.cell_count() as u32 - 1;
+        let path = |active, stack, t_min, at| Routed {
+            dest: 3,
+            hops: 2,
+            path: Path {
+                sample,
+                origin: 7,
+                sum: [i64::MIN, 0, -1],
+                active: Active {
+                    job: active,
+                    number: 9,
+                    t_min,
+                    at,
+                },
+                stack,
+                forks: 4,
+                leaf: true,
+            },
+        };
+        let paths = vec![
+            // A shadow ray toward each light, and one toward no light.
+            path(
+                job(RayKind::Shadow, toward(1), pixel, 1.0),
+                vec![
+                    job(RayKind::Shadow, toward(0), pixel, 1.0),
+                    job(RayKind::Shadow, toward(0) * 2.0, pixel, 1.0),
+                    job(RayKind::Shadow, toward(0), pixel, 0.5),
+                ],
+                -0.0,
+                Some(WalkPoint {
+                    region: Region::Back,
+                    super_cell: back.super_cell_of(last),
+                    cell: last,
+                    t_in: 0.125,
+                }),
+            ),
+            // Reflected and refracted rays, finite and infinite t_max, a ray
+            // of another pixel.
+            path(
+                job(RayKind::Reflected, Vec3::X, pixel, f64::INFINITY),
+                vec![
+                    job(RayKind::Refracted, -Vec3::Y, pixel, 3.0),
+                    job(RayKind::Primary, Vec3::Z, pixel + 1, f64::INFINITY),
+                ],
+                2.5,
+                None,
+            ),
+        ];
+        let batch = pack(&paths, &ctx);
+        let bytes = encode(&batch).unwrap();
+        let back_again = unpack(decode(&bytes).unwrap(), &ctx).unwrap();
+        assert_eq!(format!("{paths:?}"), format!("{back_again:?}"));
+        for (a, b) in paths.iter().zip(&back_again) {
+            let (a, b) = (&a.path, &b.path);
+            assert_eq!(a.active.t_min.to_bits(), b.active.t_min.to_bits());
+            for (x, y) in
+                std::iter::once((&a.active.job, &b.active.job)).chain(a.stack.iter().zip(&b.stack))
+            {
+                assert!(same(x.ray.dir, y.ray.dir) && same(x.ray.origin, y.ray.origin));
+                assert_eq!(x.weight.map(f32::to_bits), y.weight.map(f32::to_bits));
+            }
+        }
+        // Smaller than the paths themselves on the wire.
+        assert!(bytes.len() + 60 < encode(&paths).unwrap().len());
+        // A light or cell the node does not have is an error, not a panic.
+        let one_light = PathContext {
+            lights: &scene.lights[..1],
+            ..ctx
+        };
+        assert!(unpack(decode(&bytes).unwrap(), &one_light).is_err());
+        let mut far = paths[0].clone();
+        far.path.active.at.as_mut().unwrap().cell = last + 1;
+        assert!(unpack(pack(&[far], &ctx), &ctx).is_err());
     }
 }

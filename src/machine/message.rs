@@ -22,8 +22,9 @@ use crate::trace::RayJob;
 #[derive(Serialize, Deserialize)]
 pub enum ToNode {
     Load(Box<Share>),
-    /// A batch of paths over one link.
-    Rays(Vec<Routed>),
+    /// A batch of paths over one link, in their wire form
+    /// (`codec::pack`).
+    Rays(super::codec::WireBatch),
     /// Permission to start this many more primary paths.
     Credit(u32),
     /// Every path is finished: report and stop.

@@ -25,7 +25,7 @@ use std::cmp::Ordering;
 use std::collections::{BinaryHeap, VecDeque};
 use std::time::{Duration, Instant};
 
-use super::codec::{append_stamped, decode_envelope};
+use super::codec::{PathContext, append_stamped, decode_envelope, pack, unpack};
 use super::message::{
     Active, Finished, LinkModel, NodeReport, Part, Path, Routed, Share, ToHost, ToNode,
 };
@@ -150,7 +150,7 @@ pub fn run(id: u16, links: &mut dyn NodeLinks) -> Result<(), NodeError> {
 /// The bytes of the paths a message brings, once decoded.
 fn ray_bytes(body: &ToNode) -> usize {
     match body {
-        ToNode::Rays(paths) => paths.iter().map(|r| r.path.bytes()).sum(),
+        ToNode::Rays(batch) => batch.path_bytes(),
         _ => 0,
     }
 }
@@ -509,7 +509,12 @@ impl<'a> Node<'a> {
     fn take(&mut self, sent_at: f64, body: ToNode) -> Result<(), NodeError> {
         let arrival = sent_at + self.model.latency;
         match body {
-            ToNode::Rays(paths) => {
+            ToNode::Rays(batch) => {
+                // Held as `path_bytes` until now: hold what they take.
+                let estimate = batch.path_bytes();
+                let paths = unpack(batch, &self.path_context())?;
+                self.hold(paths.iter().map(|r| r.path.bytes()).sum());
+                self.release(estimate);
                 for r in paths {
                     self.arrive(r, arrival)?;
                 }
@@ -850,10 +855,22 @@ impl<'a> Node<'a> {
             return Ok(());
         }
         let held: usize = paths.iter().map(|r| r.path.bytes()).sum();
-        let body = ToNode::Rays(paths);
+        // Packing is encoding: the link model's, not the node's compute.
+        let t0 = Instant::now();
+        let body = ToNode::Rays(pack(&paths, &self.path_context()));
+        self.excluded += t0.elapsed().as_secs_f64();
         self.enqueue(i, &body)?;
         self.release(held);
         Ok(())
+    }
+
+    /// What paths on the wire may leave out (`codec::pack`).
+    fn path_context(&self) -> PathContext<'a> {
+        PathContext {
+            lights: &self.share.scene.lights,
+            spp: self.share.spp,
+            cells: &self.share.cells,
+        }
     }
 
     fn send_host(&mut self, body: ToHost) -> Result<(), NodeError> {
