@@ -95,7 +95,10 @@ impl MachineArgs {
             return Err(Error::Usage("--link-capacity must be at least 1".into()));
         }
         let mut o = MachineOptions::new(width, height, spp);
-        o.cells = CellOptions { choice: bsp };
+        o.cells = CellOptions {
+            choice: bsp,
+            ..Default::default()
+        };
         o.mapping = self.mapping;
         o.capacity = self.link_capacity;
         o.fail = match &self.inject_fault {
@@ -693,14 +696,12 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
     }
     let threads = host_threads(a.threads)?;
     let (scene, width, height) = load_for_run(&a.scene, a.width, a.height, a.quiet)?;
-    let cs = CellStructure::build(
-        &scene,
-        width,
-        height,
-        CellOptions {
-            choice: a.bsp.into(),
-        },
-    );
+    // The structure the modelled machine would use (the machine asks for
+    // more super cells on more nodes, `CellOptions::min_super_cells`).
+    let topo = a.machine.topology()?;
+    let mopts = a.machine.options(width, height, 1, a.bsp.into())?;
+    let plan = machine::host::Plan::new(&scene, &topo, &mopts);
+    let cs = &plan.cells;
     let s = &cs.stats;
     let front = cs.region(crate::cells::Region::Front);
     let back = cs.region(crate::cells::Region::Back);
@@ -735,11 +736,8 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
     );
     println!("build time          {:.4} s", s.build_seconds);
     let mut v = json!({"scene": a.scene.display().to_string(), "width": width, "height": height, "primitives": scene.primitives.len()});
-    report::stats::extend(&mut v, structure_json(&cs));
+    report::stats::extend(&mut v, structure_json(cs));
     // The mapping on the modelled machine: what each node would hold.
-    let topo = a.machine.topology()?;
-    let mopts = a.machine.options(width, height, 1, a.bsp.into())?;
-    let plan = machine::host::Plan::new(&scene, &topo, &mopts);
     println!(
         "machine             {} with {} nodes of {:.2} MiB, {} mapping",
         topo.name,
@@ -818,14 +816,14 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
         let (film, _) = render::render_with(
             &scene,
             &opts,
-            || crate::cells::CellTracer::new(&cs, &scene),
-            |job| crate::cells::CellTracer::primary_is_background(&cs, &job.ray),
+            || crate::cells::CellTracer::new(cs, &scene),
+            |job| crate::cells::CellTracer::primary_is_background(cs, &job.ray),
             &progress,
         );
         pb.finish_and_clear();
         let mut img = film.to_linear();
         let cam = crate::trace::CameraFrame::new(&scene, width, height);
-        report::overlay::draw_super_cells(&mut img, &cam, &cs, Some(&plan.owner[0]));
+        report::overlay::draw_super_cells(&mut img, &cam, cs, Some(&plan.owner[0]));
         report::write_image(o, width, height, &img)?;
         if !a.quiet {
             eprintln!("hypercast: wrote {}", o.display());

@@ -109,16 +109,22 @@ struct Pending {
 /// Builds the partition of the plane for `rects` (indexed by primitive
 /// number; `None` for primitives not in this region).
 pub fn partition(rects: &[Option<Rect>], choice: SegmentChoice) -> Partition {
-    partition_in(rects, choice, None, None)
+    partition_in(rects, choice, None, None, 0)
 }
 
 /// `partition` with the screen window the primary rays sample, which the
-/// cost model weights (`None`: the rectangles' extent).
+/// cost model weights (`None`: the rectangles' extent), and at least
+/// `min_leaves` leaves where the regions have candidate lines: while
+/// fewer would result, the sampled choice splits by its best line even
+/// when the split does not pay (breadth first, so the largest regions
+/// first). The machine needs them: a super cell is never split over
+/// nodes, so a few large ones cannot keep many nodes equally busy.
 pub fn partition_in(
     rects: &[Option<Rect>],
     choice: SegmentChoice,
     window: Option<Rect>,
     weights: Option<&[f64]>,
+    min_leaves: usize,
 ) -> Partition {
     let mut segs = Vec::new();
     let mut prims = Vec::new();
@@ -165,7 +171,10 @@ pub fn partition_in(
         } else {
             match choice {
                 SegmentChoice::FewestSplits => choose(&p.segs),
-                SegmentChoice::Sampled => cost.choose(&p.rect, &p.prims, rects, &mut scratch),
+                SegmentChoice::Sampled => {
+                    let force = leaves_if_stopped < min_leaves;
+                    cost.choose(&p.rect, &p.prims, rects, &mut scratch, force)
+                }
             }
         };
         let Some((axis, c)) = choice_here else {
@@ -384,13 +393,15 @@ impl Cost {
         w * h + self.perimeter * (w + h)
     }
 
-    /// The best split of `region` holding `prims`, if any lowers the cost.
+    /// The best split of `region` holding `prims`, if any lowers the cost
+    /// (`force`: the best, whether or not it does).
     fn choose(
         &self,
         region: &Rect,
         prims: &[u32],
         rects: &[Option<Rect>],
         scratch: &mut SweepScratch,
+        force: bool,
     ) -> Option<(u8, f64)> {
         let n = prims.len();
         if n == 0 {
@@ -457,7 +468,7 @@ impl Cost {
                 let mut hi_r = *region;
                 hi_r.set_lo(axis, c);
                 let cost = traverse + (self.weight(&lo_r) * nl + self.weight(&hi_r) * nr) / whole;
-                if cost < best.0.min(leaf) {
+                if cost < best.0 && (force || cost < leaf) {
                     best = (cost, Some((axis as u8, c)));
                 }
             }

@@ -179,7 +179,22 @@ impl RegionCells {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct CellOptions {
     pub choice: SegmentChoice,
+    /// Front super cells the BSP makes at least, where its regions hold
+    /// primitives to split by (`bsp::partition_in`). The machine asks for
+    /// `SUPER_CELLS_PER_NODE` per node, so that its mapping can balance
+    /// them (a super cell is never split over nodes); one node needs none.
+    pub min_super_cells: usize,
 }
+
+/// Front super cells per node the machine asks the build for. The cost
+/// model alone stops at 36 on `jagged_ball.ron`: on 32 nodes its busy
+/// imbalance was 3.2 and its makespan about 5,200 virtual seconds; with 4
+/// per node 2.4 and 3,600-4,400, with 8 1.9 and 3,800-3,900, with 16 2.1
+/// and 4,000 (1024x1024, two runs each). Forcing them on every render
+/// would cost a single node time (4 per node of 32: jagged_ball 0.142 s
+/// against 0.123 s at 640x480), so only the machine asks, by its node
+/// count.
+pub const SUPER_CELLS_PER_NODE: usize = 8;
 
 /// Counts that describe a built structure (`--stats`, `inspect`).
 #[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
@@ -292,7 +307,13 @@ impl CellStructure {
                     _ => 1.0,
                 })
                 .collect();
-            let mut partition = bsp::partition_in(&rects, opts.choice, window, Some(&weights));
+            let min_leaves = if region == Region::Front {
+                opts.min_super_cells
+            } else {
+                0
+            };
+            let mut partition =
+                bsp::partition_in(&rects, opts.choice, window, Some(&weights), min_leaves);
             splits += partition.splits;
             let cam_boxes: Vec<Option<projection::CamBox>> = prim_box
                 .iter()

@@ -175,7 +175,15 @@ impl Plan {
     pub fn new(scene: &Scene, topo: &Topology, opts: &MachineOptions) -> Plan {
         let d = topo.dimension;
         let n = 1usize << d;
-        let cells = CellStructure::build(scene, opts.width, opts.height, opts.cells);
+        let cell_opts = CellOptions {
+            min_super_cells: if n > 1 {
+                crate::cells::SUPER_CELLS_PER_NODE * n
+            } else {
+                0
+            },
+            ..opts.cells
+        };
+        let cells = CellStructure::build(scene, opts.width, opts.height, cell_opts);
         let t_pre = Instant::now();
         let work = mapping::estimate(&cells, scene, opts.width, opts.height, opts.mapping);
         let owner = mapping::assign(&cells, &work, d);

@@ -45,7 +45,15 @@ pub(crate) fn structures(scene: &Scene, width: u32, height: u32) -> Vec<CellStru
     CHOICES
         .iter()
         .map(|&choice| {
-            let cs = CellStructure::build(scene, width, height, CellOptions { choice });
+            let cs = CellStructure::build(
+                scene,
+                width,
+                height,
+                CellOptions {
+                    choice,
+                    ..Default::default()
+                },
+            );
             assert_cell_bounds_not_nan(&cs);
             cs
         })
@@ -101,7 +109,15 @@ pub(crate) fn assert_renders_equal_with(
     let mut out = Vec::new();
     for &choice in choices {
         let cells = std::panic::catch_unwind(|| {
-            render_cells(scene, &opts, CellOptions { choice }, &|_| {})
+            render_cells(
+                scene,
+                &opts,
+                CellOptions {
+                    choice,
+                    ..Default::default()
+                },
+                &|_| {},
+            )
         });
         let Ok((film, _, cs)) = cells else {
             panic!(
@@ -290,7 +306,15 @@ impl Tracer for Compare<'_> {
 /// background, and every ray (primary or secondary, in the order the
 /// renderer traces them) whose nearest hit differs, with its exact numbers.
 fn differences(scene: &Scene, opts: &RenderOptions, choice: SegmentChoice) -> String {
-    let cs = CellStructure::build(scene, opts.width, opts.height, CellOptions { choice });
+    let cs = CellStructure::build(
+        scene,
+        opts.width,
+        opts.height,
+        CellOptions {
+            choice,
+            ..Default::default()
+        },
+    );
     let mut out = String::new();
     let cam = CameraFrame::new(scene, opts.width, opts.height);
     let mut roth = RothTracer::new(scene);
@@ -352,7 +376,15 @@ fn random_csg_scenes_render_identically_with_cells_and_roth() {
         assert_pixels_finite(&roth);
         for choice in CHOICES {
             let cells = std::panic::catch_unwind(|| {
-                render_cells(&scene, &r, CellOptions { choice }, &|_| {})
+                render_cells(
+                    &scene,
+                    &r,
+                    CellOptions {
+                        choice,
+                        ..Default::default()
+                    },
+                    &|_| {},
+                )
             });
             let Ok((film, _, cs)) = cells else {
                 eprintln!(
@@ -428,7 +460,15 @@ fn random_rays_in_random_scenes_hit_what_roth_hits() {
         let ron = scene_to_string(&model, SceneSyntax::Ron).unwrap();
         let scene = load(&ron);
         let choice = CHOICES[(seed % 2) as usize];
-        let cs = CellStructure::build(&scene, 64, 48, CellOptions { choice });
+        let cs = CellStructure::build(
+            &scene,
+            64,
+            48,
+            CellOptions {
+                choice,
+                ..Default::default()
+            },
+        );
         assert_cell_bounds_not_nan(&cs);
         let mut roth = RothTracer::new(&scene);
         let mut tracer = CellTracer::new(&cs, &scene);
@@ -1125,4 +1165,23 @@ fn case_28_subnormal_and_negative_zero_directions_act_as_zero() {
             }
         }
     }
+}
+
+/// The machine's extra super cells (`CellOptions::min_super_cells`): the
+/// BSP makes at least that many where it has lines to split by, and the
+/// image stays Roth's.
+#[test]
+fn forced_super_cells_are_there_and_change_no_pixel() {
+    let scene = hypercast::scene::load_scene(&crate::util::repo("scenes/jagged_ball.ron")).unwrap();
+    let opts = options(96, 72);
+    let (roth, _) = render_roth(&scene, &opts, &|_| {});
+    let plain = CellStructure::build(&scene, 96, 72, CellOptions::default());
+    let want = 4 * plain.region(Region::Front).supers.len();
+    let forced = CellOptions {
+        min_super_cells: want,
+        ..Default::default()
+    };
+    let (film, _, cs) = render_cells(&scene, &opts, forced, &|_| {});
+    assert!(cs.region(Region::Front).supers.len() >= want);
+    assert_eq!(roth.sums(), film.sums());
 }
