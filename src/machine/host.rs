@@ -216,6 +216,16 @@ impl Plan {
         }
     }
 
+    /// Finished records credited on their node that may wait for the host's
+    /// link at once: the plan keeps room for a window of finished samples
+    /// at a path's bound each (`new`), and a record takes far less (its
+    /// size in `done`, no more encoded).
+    pub fn local_credits(&self) -> u32 {
+        let per = std::mem::size_of::<Finished>() as u64;
+        (u64::from(self.window) * self.path_bytes / per)
+            .clamp(u64::from(self.window), u64::from(u32::MAX)) as u32
+    }
+
     /// Refuses, with the numbers, a plan where some node cannot hold its
     /// share, one path in flight per node and one finished sample. The
     /// hint names a larger dimension only where more nodes can help: a
@@ -391,6 +401,7 @@ fn run_pass(
                 first_sample: pass.first_sample,
                 pixels: pixels.clone(),
                 window: plan.window,
+                local_credits: plan.local_credits(),
                 budget: topo.node_memory,
                 link: model,
                 fail_after: opts.fail.filter(|f| f.0 as usize == i).map(|f| f.1),

@@ -798,11 +798,12 @@ impl<'a> Node<'a> {
     /// Takes back the credit of a sample of this node's own that finished
     /// whole here, instead of waiting for the host to return it (a round
     /// trip through the host link and the host's thread, for a sample the
-    /// node already knows is done). Memory stays bounded: at most a window
-    /// of such samples waits for the host's link (the host's plan counts
-    /// them), beyond that the credit comes from the host as for any other.
+    /// node already knows is done). Memory stays bounded: at most
+    /// `local_credits` such records wait for the host's link (the room the
+    /// host's plan keeps for a window of finished samples), beyond that
+    /// the credit comes from the host as for any other.
     fn credit_locally(&mut self) -> bool {
-        if self.credited_in_done + self.credited_waiting >= self.share.window {
+        if self.credited_in_done + self.credited_waiting >= self.share.local_credits {
             return false;
         }
         self.credited_in_done += 1;
@@ -816,8 +817,8 @@ impl<'a> Node<'a> {
     /// background) wait for a full batch or for the node to idle: nothing
     /// waits on them, and on the modelled machine each message costs a
     /// start-up (a millisecond on the iPSC, against about 35 ms of work
-    /// per sample of the sphereflake). At most a window of records
-    /// credited here waits (`credit_locally`), and DONE_BATCH in all.
+    /// per sample of the sphereflake). At most `local_credits` records
+    /// credited here wait (`credit_locally`), DONE_BATCH of them here.
     fn finish_sample(&mut self, f: Finished) -> Result<(), NodeError> {
         if f.traced && !f.credited && self.done_urgent.is_none() {
             self.done_urgent = Some(self.clock);
