@@ -452,6 +452,15 @@ fn stats_count_none_of_what_a_scene_cannot_use() {
     }
 }
 
+/// `inspect`'s per-node rows (node, super cells, cells, primitives,
+/// memory, structure, work), split into words.
+fn node_rows(out: &str) -> Vec<Vec<&str>> {
+    out.lines()
+        .map(|l| l.split_whitespace().collect::<Vec<_>>())
+        .filter(|w| w.len() == 7 && w[0].parse::<u32>().is_ok())
+        .collect()
+}
+
 /// A node that owns nothing prints no work, not "-0" (an empty float sum
 /// is -0.0): csg_basics has fewer super cells than 32 nodes can take.
 #[test]
@@ -461,11 +470,7 @@ fn inspect_prints_nodes_that_own_nothing() {
     let o = run(tmp.path(), &["inspect", path_str(&scene), "--dim", "5"]);
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     let out = String::from_utf8_lossy(&o.stdout).into_owned();
-    let rows: Vec<Vec<&str>> = out
-        .lines()
-        .map(|l| l.split_whitespace().collect::<Vec<_>>())
-        .filter(|w| w.len() == 7 && w[0].parse::<u32>().is_ok())
-        .collect();
+    let rows = node_rows(&out);
     assert_eq!(rows.len(), 32, "{out}");
     let idle: Vec<_> = rows.iter().filter(|w| w[1] == "0").collect();
     assert!(!idle.is_empty(), "{out}");
@@ -511,11 +516,7 @@ fn inspect_prints_the_subdivision_and_every_nodes_share() {
         assert!(out.contains(key), "no {key:?} in\n{out}");
     }
     // One row per node, and no negative zero for a node that owns nothing.
-    let rows: Vec<Vec<&str>> = out
-        .lines()
-        .map(|l| l.split_whitespace().collect::<Vec<_>>())
-        .filter(|w| w.len() == 7 && w[0].parse::<u32>().is_ok())
-        .collect();
+    let rows = node_rows(&out);
     assert_eq!(rows.len(), 32, "{out}");
     // The machine asks the build for 8 front super cells per node (the
     // cost model alone stops at 36 on the jagged ball): each of the 32
