@@ -625,6 +625,7 @@ pub fn machine_json(topo: &Topology, ms: &MachineStats) -> Vec<(&'static str, se
                 "super_cells": n.super_cells,
                 "primitives": n.primitives,
                 "memory_bytes": n.memory_bytes,
+                "structure_bytes": n.structure_bytes,
                 "memory_budget_bytes": n.memory_budget_bytes,
                 "peak_memory_bytes": n.peak_memory_bytes,
                 "rays_processed": n.rays_processed,

@@ -54,6 +54,13 @@ fn check_stats(scene: &Scene, s: &machine::MachineStats) {
             n.node
         );
         assert!(n.peak_memory_bytes >= n.memory_bytes);
+        // The structure is part of the share, never all of it (the
+        // primitives and mailboxes are the rest).
+        assert!(
+            n.structure_bytes > 0 && n.structure_bytes < n.memory_bytes,
+            "node {}: {n:?}",
+            n.node
+        );
     }
     assert!(s.virtual_seconds > 0.0);
 }
