@@ -99,6 +99,63 @@ impl CellStructure {
     }
 }
 
+/// A side plane's crossing `x = c·z` (front) or `x = c` (back) along
+/// `axis`, or infinity for none (parallel, at infinity, or, in front, the
+/// plane's mirror half behind the eye).
+#[inline(always)]
+fn side_crossing<const FRONT: bool>(rr: &RegionRay, axis: usize, c: f64) -> f64 {
+    let (o, d) = (rr.cam.o, rr.cam.d);
+    let t = if FRONT {
+        (c * o.z - o[axis]) / (d[axis] - c * d.z)
+    } else {
+        (c - o[axis]) / d[axis]
+    };
+    if c.is_finite() && t.is_finite() && (!FRONT || o.z + t * d.z > 0.0) {
+        t
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// A depth plane's crossing (not finite for none).
+#[inline(always)]
+fn depth_crossing(rr: &RegionRay, z: f64) -> f64 {
+    (z - rr.cam.o.z) * rr.inv_dz
+}
+
+impl CellStructure {
+    /// Where a ray moving as `rr` enters cell `k` of super cell `s` through
+    /// its face across `axis` (0, 1: the sides across screen x and y; 2:
+    /// depth), computed as the walk computes the previous cell's exit
+    /// through that plane: the same plane (neighbours share their
+    /// boundary's coordinate) by the same arithmetic, so the same bits,
+    /// unless the walk clamped its exit. The wire uses it to leave out a
+    /// walk point's entry parameter where it gives back the same bits
+    /// (`machine::codec`).
+    pub fn entry_crossing(&self, rr: &RegionRay, s: u32, k: u32, axis: usize) -> f64 {
+        let rc = self.region(rr.region);
+        let m = rr.m[axis.min(2)];
+        if axis >= 2 {
+            let z = if m > 0.0 {
+                rc.zlo[k as usize].into()
+            } else {
+                rc.zhi(s, k)
+            };
+            return depth_crossing(rr, z);
+        }
+        let rect = &rc.supers[s as usize].rect;
+        let c = if m > 0.0 {
+            rect.lo(axis)
+        } else {
+            rect.hi(axis)
+        };
+        match rr.region {
+            Region::Front => side_crossing::<true>(rr, axis, c),
+            Region::Back => side_crossing::<false>(rr, axis, c),
+        }
+    }
+}
+
 impl RegionCells {
     /// The super cell and cell containing the ray's point at `t`: super
     /// cell `hint` if it contains the point, else by descending the BSP
@@ -182,21 +239,7 @@ impl RegionCells {
     #[inline(always)]
     fn exit_in<const FRONT: bool>(&self, rr: &RegionRay, s: u32, k: u32, t_in: f64) -> (f64, Face) {
         let rect = &self.supers[s as usize].rect;
-        let (o, d) = (rr.cam.o, rr.cam.d);
-        // A side plane's crossing, or infinity for none (parallel, at
-        // infinity, or, in front, the plane's mirror half behind the eye).
-        let side = |axis: usize, c: f64| -> f64 {
-            let t = if FRONT {
-                (c * o.z - o[axis]) / (d[axis] - c * d.z)
-            } else {
-                (c - o[axis]) / d[axis]
-            };
-            if c.is_finite() && t.is_finite() && (!FRONT || o.z + t * d.z > 0.0) {
-                t
-            } else {
-                f64::INFINITY
-            }
-        };
+        let side = |axis: usize, c: f64| side_crossing::<FRONT>(rr, axis, c);
         let mut t_out = f64::INFINITY;
         // 0, 1: the side faces across x and y; 2: depth; 3: none.
         let mut face = 3usize;
@@ -224,7 +267,7 @@ impl RegionCells {
             } else {
                 self.zlo[k as usize].into()
             };
-            let t = (z - o.z) * rr.inv_dz;
+            let t = depth_crossing(rr, z);
             if z.is_finite() && t.is_finite() && t < t_out {
                 t_out = t;
                 face = 2;

@@ -15,6 +15,7 @@ use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
 use super::message::{Active, Path, Routed};
+use crate::cells::traverse::RegionRay;
 use crate::cells::{CellStructure, Region, WalkPoint};
 use crate::geom::{Ray, Vec3};
 use crate::scene::Light;
@@ -151,11 +152,71 @@ struct WireRouted {
     stack: Vec<WireJob>,
 }
 
-/// A walk point without its super cell: `cell << 1 | region`.
+/// A walk point without its super cell: `cell << 1 | region`, and where
+/// the ray entered it.
 #[derive(Clone, Copy, Debug, Serialize, Deserialize)]
 struct WireAt {
     cell: u32,
-    t_in: f64,
+    entry: WireEntry,
+}
+
+/// A walk point's `t_in`: through which face the ray entered (the
+/// receiver recomputes the crossing, `CellStructure::entry_crossing`,
+/// where that gives the same bits), or the parameter itself.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
+enum WireEntry {
+    AcrossX,
+    AcrossY,
+    AcrossDepth,
+    At(f64),
+}
+
+impl WireEntry {
+    const FACES: [WireEntry; 3] = [
+        WireEntry::AcrossX,
+        WireEntry::AcrossY,
+        WireEntry::AcrossDepth,
+    ];
+
+    fn axis(self) -> Option<usize> {
+        match self {
+            WireEntry::AcrossX => Some(0),
+            WireEntry::AcrossY => Some(1),
+            WireEntry::AcrossDepth => Some(2),
+            WireEntry::At(_) => None,
+        }
+    }
+}
+
+/// The walk's view of `ray` in `region` (as `CellTracer::walk` makes it).
+fn region_ray(ray: &Ray, region: Region, ctx: &PathContext) -> RegionRay {
+    RegionRay::new(region, ctx.cells.view.ray(ray))
+}
+
+fn pack_entry(w: &WalkPoint, ray: &Ray, ctx: &PathContext) -> WireEntry {
+    let rr = region_ray(ray, w.region, ctx);
+    WireEntry::FACES
+        .into_iter()
+        .find(|f| {
+            let t = ctx
+                .cells
+                .entry_crossing(&rr, w.super_cell, w.cell, f.axis().expect("a face"));
+            t.to_bits() == w.t_in.to_bits()
+        })
+        .unwrap_or(WireEntry::At(w.t_in))
+}
+
+fn unpack_entry(e: WireEntry, w: &WalkPoint, ray: &Ray, ctx: &PathContext) -> f64 {
+    match e.axis() {
+        Some(axis) => {
+            let rr = region_ray(ray, w.region, ctx);
+            ctx.cells.entry_crossing(&rr, w.super_cell, w.cell, axis)
+        }
+        None => match e {
+            WireEntry::At(t) => t,
+            _ => unreachable!("a face has an axis"),
+        },
+    }
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -287,7 +348,7 @@ pub fn pack(paths: &[Routed], ctx: &PathContext) -> WireBatch {
                     t_min: (a.t_min.to_bits() != 0f64.to_bits()).then_some(a.t_min),
                     at: a.at.map(|w| WireAt {
                         cell: w.cell << 1 | (w.region == Region::Back) as u32,
-                        t_in: w.t_in,
+                        entry: pack_entry(&w, &a.job.ray, ctx),
                     }),
                     active: pack_job(&a.job, pixel, ctx),
                     stack: p.stack.iter().map(|j| pack_job(j, pixel, ctx)).collect(),
@@ -307,6 +368,7 @@ pub fn unpack(batch: WireBatch, ctx: &PathContext) -> Result<Vec<Routed>, String
         .map(|w| {
             let pixel = u32::try_from(w.sample / spp)
                 .map_err(|_| format!("sample {} is past every pixel", w.sample))?;
+            let job = unpack_job(w.active, pixel, ctx)?;
             let at = match w.at {
                 None => None,
                 Some(a) => {
@@ -320,12 +382,14 @@ pub fn unpack(batch: WireBatch, ctx: &PathContext) -> Result<Vec<Routed>, String
                     if cell as usize >= rc.cell_count() {
                         return Err(format!("a path at cell {cell}, which is none"));
                     }
-                    Some(WalkPoint {
+                    let mut p = WalkPoint {
                         region,
                         super_cell: rc.super_cell_of(cell),
                         cell,
-                        t_in: a.t_in,
-                    })
+                        t_in: 0.0,
+                    };
+                    p.t_in = unpack_entry(a.entry, &p, &job.ray, ctx);
+                    Some(p)
                 }
             };
             let mut stack = Vec::with_capacity(w.stack.len());
@@ -340,7 +404,7 @@ pub fn unpack(batch: WireBatch, ctx: &PathContext) -> Result<Vec<Routed>, String
                     origin: w.origin,
                     sum: w.sum,
                     active: Active {
-                        job: unpack_job(w.active, pixel, ctx)?,
+                        job,
                         number: w.number,
                         t_min: w.t_min.unwrap_or(0.0),
                         at,
@@ -402,7 +466,16 @@ mod tests {
             std::path::Path::new("t.ron"),
         )
         .unwrap();
-        let cells = CellStructure::build(&scene, 8, 8, CellOptions::default());
+        // Several super cells, so that rays cross side faces.
+        let cells = CellStructure::build(
+            &scene,
+            8,
+            8,
+            CellOptions {
+                min_super_cells: 16,
+                ..CellOptions::default()
+            },
+        );
         let ctx = PathContext {
             lights: &scene.lights,
             spp: 4,
@@ -468,6 +541,44 @@ mod tests {
                 None,
             ),
         ];
+        // Walk points whose entry the receiver recomputes: a cell and face
+        // of each axis that the ray crosses.
+        let mut paths = paths;
+        let front = cells.region(Region::Front);
+        let ray = Ray::new(o, Vec3::new(0.3, 1.0, -0.2));
+        let rr = RegionRay::new(Region::Front, cells.view.ray(&ray));
+        let mut recomputed = [false; 3];
+        for s in 0..front.supers.len() as u32 {
+            for (axis, done) in recomputed.iter_mut().enumerate() {
+                let k = front.cells_of(s).end as u32 - 1;
+                let t = cells.entry_crossing(&rr, s, k, axis);
+                if *done || !t.is_finite() {
+                    continue;
+                }
+                *done = true;
+                let mut p = paths[1].clone();
+                p.path.active.job.ray = ray;
+                p.path.active.at = Some(WalkPoint {
+                    region: Region::Front,
+                    super_cell: s,
+                    cell: k,
+                    t_in: t,
+                });
+                let packed = pack(std::slice::from_ref(&p), &ctx);
+                let entry = packed.0[0].at.unwrap().entry;
+                assert!(
+                    !matches!(entry, WireEntry::At(_)),
+                    "axis {axis}: sent whole"
+                );
+                paths.push(p);
+            }
+        }
+        assert!(
+            recomputed.iter().filter(|&&r| r).count() >= 2,
+            "{recomputed:?} {:?} {:?}",
+            rr.m,
+            front.supers.iter().map(|s| s.rect).collect::<Vec<_>>()
+        );
         let batch = pack(&paths, &ctx);
         let bytes = encode(&batch).unwrap();
         let back_again = unpack(decode(&bytes).unwrap(), &ctx).unwrap();
@@ -483,7 +594,7 @@ mod tests {
             }
         }
         // Smaller than the paths themselves on the wire.
-        assert!(bytes.len() + 60 < encode(&paths).unwrap().len());
+        assert!(bytes.len() + 100 < encode(&paths).unwrap().len());
         // A light or cell the node does not have is an error, not a panic.
         let one_light = PathContext {
             lights: &scene.lights[..1],
