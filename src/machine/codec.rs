@@ -50,10 +50,11 @@ pub fn decode<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, String> {
     Ok(msg)
 }
 
-/// Appends `body` to `envelope` as one stamped frame: its length (u32),
-/// the virtual time at which its sender finishes sending it, which `stamp`
-/// computes from the frame's length (the stamp itself is always 8 bytes,
-/// an f64), and its bytes. Returns the frame's length.
+/// Appends `body` to `envelope` as one stamped frame: the body's length
+/// (LEB128: one byte below 128, two below 16,384), the virtual time at
+/// which its sender finishes sending it, which `stamp` computes from the
+/// frame's length (the stamp itself is always 8 bytes, an f64), and the
+/// body's bytes. Returns the frame's length.
 ///
 /// An envelope is what moves over a link in one transfer: one or more
 /// frames, each a message of the modelled machine. The emulation gathers
@@ -65,21 +66,52 @@ pub fn append_stamped<T: Serialize>(
     body: &T,
     stamp: impl FnOnce(usize) -> f64,
 ) -> Result<usize, String> {
+    // The body goes after the header, whose length depends on the body's:
+    // encode it at the end, then move it up behind the header.
     let start = envelope.len();
-    envelope.extend_from_slice(&[0u8; 12]);
+    const ROOM: usize = 10 + 8;
+    envelope.extend_from_slice(&[0u8; ROOM]);
     if let Err(e) = bincode::serde::encode_into_std_write(body, envelope, config()) {
         envelope.truncate(start);
         return Err(format!("cannot encode: {e}"));
     }
-    let len = envelope.len() - start;
-    let Ok(len32) = u32::try_from(len) else {
-        envelope.truncate(start);
-        return Err(format!("a message of {len} bytes is too long to frame"));
-    };
+    let body_len = envelope.len() - start - ROOM;
+    let mut head = [0u8; 10];
+    let n = leb128(body_len as u64, &mut head);
+    let len = n + 8 + body_len;
     let t = stamp(len);
-    envelope[start..start + 4].copy_from_slice(&len32.to_le_bytes());
-    envelope[start + 4..start + 12].copy_from_slice(&t.to_le_bytes());
+    envelope[start..start + n].copy_from_slice(&head[..n]);
+    envelope[start + n..start + n + 8].copy_from_slice(&t.to_le_bytes());
+    envelope.copy_within(start + ROOM..start + ROOM + body_len, start + n + 8);
+    envelope.truncate(start + len);
     Ok(len)
+}
+
+/// `v` in LEB128 into `out`; returns the bytes used.
+fn leb128(mut v: u64, out: &mut [u8; 10]) -> usize {
+    let mut n = 0;
+    loop {
+        let byte = (v & 0x7f) as u8;
+        v >>= 7;
+        if v == 0 {
+            out[n] = byte;
+            return n + 1;
+        }
+        out[n] = byte | 0x80;
+        n += 1;
+    }
+}
+
+/// A LEB128 number from the front of `bytes`, and the bytes it used.
+fn read_leb128(bytes: &[u8]) -> Option<(u64, usize)> {
+    let mut v = 0u64;
+    for (i, &b) in bytes.iter().enumerate().take(10) {
+        v |= u64::from(b & 0x7f).checked_shl(7 * i as u32)?;
+        if b & 0x80 == 0 {
+            return Some((v, i + 1));
+        }
+    }
+    None
 }
 
 /// An envelope of one stamped frame.
@@ -96,19 +128,23 @@ pub fn encode_stamped<T: Serialize>(
 pub fn decode_envelope<T: DeserializeOwned>(mut bytes: &[u8]) -> Result<Vec<(f64, T)>, String> {
     let mut out = Vec::new();
     while !bytes.is_empty() {
-        let Some((head, _)) = bytes.split_first_chunk::<12>() else {
-            return Err(format!("a frame of {} bytes has no header", bytes.len()));
+        let Some((body_len, n)) = read_leb128(bytes) else {
+            return Err(format!("a frame of {} bytes has no length", bytes.len()));
         };
-        let len = u32::from_le_bytes(head[..4].try_into().expect("4 bytes")) as usize;
-        if len < 12 || len > bytes.len() {
+        let Some(stamp) = bytes.get(n..n + 8) else {
+            return Err(format!("a frame of {} bytes has no stamp", bytes.len()));
+        };
+        let stamp = f64::from_le_bytes(stamp.try_into().expect("8 bytes"));
+        let rest = &bytes[n + 8..];
+        let body_len = usize::try_from(body_len).unwrap_or(usize::MAX);
+        if body_len > rest.len() {
             return Err(format!(
-                "a frame claims {len} bytes where {} remain",
-                bytes.len()
+                "a frame claims {body_len} bytes where {} remain",
+                rest.len()
             ));
         }
-        let stamp = f64::from_le_bytes(head[4..].try_into().expect("8 bytes"));
-        out.push((stamp, decode(&bytes[12..len])?));
-        bytes = &bytes[len..];
+        out.push((stamp, decode(&rest[..body_len])?));
+        bytes = &rest[body_len..];
     }
     Ok(out)
 }
