@@ -48,6 +48,10 @@ pub struct ScaleRow {
     /// d = 0): what distributing the cells costs in memory.
     pub structure_bytes: u64,
     pub structure_ratio: f64,
+    /// The largest node's intersection tests against the mean: a measure
+    /// of the balance that, unlike busy time, does not move with the
+    /// host's load (busy time follows it closely, not exactly).
+    pub imbalance_tests: f64,
 }
 
 /// Parses `--dims`: `A..B` (inclusive) or a list `0,2,5`.
@@ -91,6 +95,21 @@ fn median(mut v: Vec<f64>) -> f64 {
         v[n / 2]
     } else {
         (v[n / 2 - 1] + v[n / 2]) / 2.0
+    }
+}
+
+/// The largest of `v` against their mean (1 for none or all zero).
+fn max_over_mean(v: impl Iterator<Item = f64>) -> f64 {
+    let (mut n, mut sum, mut max) = (0usize, 0.0, 0.0f64);
+    for x in v {
+        n += 1;
+        sum += x;
+        max = max.max(x);
+    }
+    if n == 0 || sum <= 0.0 {
+        1.0
+    } else {
+        max / (sum / n as f64)
     }
 }
 
@@ -189,12 +208,15 @@ pub fn measure(
             bytes_per_ray: rep.message_bytes as f64 / rep.rays.total().max(1) as f64,
             structure_bytes,
             structure_ratio: structure_bytes as f64 / whole_structure.max(1) as f64,
+            imbalance_tests: max_over_mean(
+                rep.per_node.iter().map(|n| n.intersection_tests as f64),
+            ),
         });
     }
     Ok(rows)
 }
 
-const HEADER: [&str; 22] = [
+const HEADER: [&str; 23] = [
     "dimension",
     "nodes",
     "wall_seconds",
@@ -217,9 +239,10 @@ const HEADER: [&str; 22] = [
     "bytes_per_ray",
     "structure_bytes",
     "structure_ratio",
+    "imbalance_tests",
 ];
 
-fn fields(r: &ScaleRow) -> [String; 22] {
+fn fields(r: &ScaleRow) -> [String; 23] {
     [
         r.dimension.to_string(),
         r.nodes.to_string(),
@@ -246,6 +269,7 @@ fn fields(r: &ScaleRow) -> [String; 22] {
         format!("{:.1}", r.bytes_per_ray),
         r.structure_bytes.to_string(),
         format!("{:.3}", r.structure_ratio),
+        format!("{:.3}", r.imbalance_tests),
     ]
 }
 

@@ -550,3 +550,74 @@ fn inspect_prints_the_subdivision_and_every_nodes_share() {
         assert!(st > 0 && st < m, "{n}");
     }
 }
+
+/// `hypercast scale` (issue 4): one render per dimension, a printed
+/// table, `scaling.csv` with a row per dimension whose counts hang
+/// together, and `scaling.png`.
+#[test]
+fn scale_writes_the_table_csv_and_plot() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = util::repo("scenes/small/mirror.ron");
+    let o = run(
+        tmp.path(),
+        &[
+            "scale",
+            path_str(&scene),
+            "--dims",
+            "0..2",
+            "--width",
+            "40",
+            "--height",
+            "30",
+            "--out",
+            "out",
+            "-q",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let table = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(
+        table.contains("speedup_virtual") && table.contains("bytes_per_ray"),
+        "{table}"
+    );
+    let csv = std::fs::read_to_string(tmp.path().join("out/scaling.csv")).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), 3, "{csv}");
+    let col = |name: &str| {
+        header
+            .iter()
+            .position(|h| *h == name)
+            .unwrap_or_else(|| panic!("no {name}"))
+    };
+    let num = |r: &[&str], name: &str| r[col(name)].parse::<f64>().unwrap();
+    for (d, r) in rows.iter().enumerate() {
+        assert_eq!(r.len(), header.len(), "{csv}");
+        assert_eq!(num(r, "dimension"), d as f64);
+        assert_eq!(num(r, "nodes"), (1 << d) as f64);
+        assert!(num(r, "virtual_seconds") > 0.0 && num(r, "wall_seconds") > 0.0);
+        for k in [
+            "imbalance_balanced",
+            "imbalance_equal_area",
+            "imbalance_tests",
+        ] {
+            assert!(num(r, k) >= 1.0, "{k} {csv}");
+        }
+        // Every ray is counted, the same on every dimension.
+        assert_eq!(r[col("rays")], rows[0][col("rays")], "{csv}");
+        assert!(num(r, "peak_over_budget") <= 1.0);
+        let per_ray = num(r, "message_bytes") / num(r, "rays");
+        assert!((per_ray - num(r, "bytes_per_ray")).abs() < 0.06, "{csv}");
+    }
+    // One node holds the whole structure; more nodes hold more of it
+    // together (every one the skeleton), and send rays to each other.
+    assert_eq!(num(&rows[0], "structure_ratio"), 1.0);
+    assert_eq!(num(&rows[0], "hops"), 0.0);
+    for r in &rows[1..] {
+        assert!(num(r, "structure_ratio") > 1.0, "{csv}");
+        assert!(num(r, "hops") > 0.0, "{csv}");
+    }
+    let img = image::open(tmp.path().join("out/scaling.png")).expect("the plot");
+    assert!(img.width() > 100 && img.height() > 100);
+}
