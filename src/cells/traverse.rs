@@ -592,6 +592,9 @@ pub struct CellTracer<'a> {
     pub eval_counts: EvalCounts,
     /// Work per super cell, when recording (`record_work`).
     profile: Option<Box<[Vec<u64>; 2]>>,
+    /// When recording for a mapping (`record_work_for`), each super cell's
+    /// owner.
+    owners: Option<Box<[Vec<u16>; 2]>>,
 }
 
 impl<'a> CellTracer<'a> {
@@ -611,6 +614,7 @@ impl<'a> CellTracer<'a> {
             counters: TraceCounters::default(),
             eval_counts: EvalCounts::default(),
             profile: None,
+            owners: None,
         }
     }
 
@@ -844,6 +848,16 @@ impl CellTracer<'_> {
         ));
     }
 
+    /// `record_work`, walking as the machine would with super cells owned
+    /// by `owner` (`machine::mapping`): a ray that crosses to another
+    /// owner's super cell resumes there with cold mailboxes (a new ray
+    /// number), so the primitives it met before count again, as tests,
+    /// where the machine will test them again.
+    pub fn record_work_for(&mut self, owner: [Vec<u16>; 2]) {
+        self.record_work();
+        self.owners = Some(Box::new(owner));
+    }
+
     /// The work recorded since `record_work`.
     pub fn recorded_work(&self) -> Option<&[Vec<u64>; 2]> {
         self.profile.as_deref()
@@ -982,6 +996,13 @@ impl CellTracer<'_> {
                 }
                 match rc.enter_next(&rr, s, k, t_out, face) {
                     Some((s2, k2)) => {
+                        if let Some(o) = &self.owners {
+                            let o = &o[region as usize];
+                            if o[s2 as usize] != o[s as usize] {
+                                // Every mailbox cold: a new ray number.
+                                self.ray_id += 1;
+                            }
+                        }
                         s = s2;
                         k = k2;
                         t_in = t_out;
