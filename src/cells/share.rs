@@ -34,9 +34,11 @@ impl CellStructure {
         let mut keep = vec![false; old.nodes.len()];
         let mut stack = Vec::new();
         for r in &self.regions {
-            for c in r.cells() {
-                if c.subtree < REMOTE && owns(r.region, c.super_cell) && !keep[c.subtree as usize] {
-                    stack.push(NodeId(c.subtree));
+            let owned = (0..r.supers.len() as u32).filter(|&s| owns(r.region, s));
+            for k in owned.flat_map(|s| r.cells_of(s)) {
+                let t = r.subtree[k];
+                if t < REMOTE && !keep[t as usize] {
+                    stack.push(NodeId(t));
                     while let Some(n) = stack.pop() {
                         if !keep[n.index()] {
                             keep[n.index()] = true;

@@ -207,22 +207,13 @@ enum WireEntry {
     At(f64),
 }
 
-impl WireEntry {
-    const FACES: [WireEntry; 3] = [
-        WireEntry::AcrossX,
-        WireEntry::AcrossY,
-        WireEntry::AcrossDepth,
-    ];
-
-    fn axis(self) -> Option<usize> {
-        match self {
-            WireEntry::AcrossX => Some(0),
-            WireEntry::AcrossY => Some(1),
-            WireEntry::AcrossDepth => Some(2),
-            WireEntry::At(_) => None,
-        }
-    }
-}
+/// The faces a walk point may name, with the axis each is across
+/// (`CellStructure::entry_crossing`).
+const FACES: [(WireEntry, usize); 3] = [
+    (WireEntry::AcrossX, 0),
+    (WireEntry::AcrossY, 1),
+    (WireEntry::AcrossDepth, 2),
+];
 
 /// The walk's view of `ray` in `region` (as `CellTracer::walk` makes it).
 fn region_ray(ray: &Ray, region: Region, ctx: &PathContext) -> RegionRay {
@@ -231,28 +222,24 @@ fn region_ray(ray: &Ray, region: Region, ctx: &PathContext) -> RegionRay {
 
 fn pack_entry(w: &WalkPoint, ray: &Ray, ctx: &PathContext) -> WireEntry {
     let rr = region_ray(ray, w.region, ctx);
-    WireEntry::FACES
+    FACES
         .into_iter()
-        .find(|f| {
-            let t = ctx
-                .cells
-                .entry_crossing(&rr, w.super_cell, w.cell, f.axis().expect("a face"));
+        .find(|&(_, axis)| {
+            let t = ctx.cells.entry_crossing(&rr, w.super_cell, w.cell, axis);
             t.to_bits() == w.t_in.to_bits()
         })
-        .unwrap_or(WireEntry::At(w.t_in))
+        .map_or(WireEntry::At(w.t_in), |(face, _)| face)
 }
 
 fn unpack_entry(e: WireEntry, w: &WalkPoint, ray: &Ray, ctx: &PathContext) -> f64 {
-    match e.axis() {
-        Some(axis) => {
-            let rr = region_ray(ray, w.region, ctx);
-            ctx.cells.entry_crossing(&rr, w.super_cell, w.cell, axis)
-        }
-        None => match e {
-            WireEntry::At(t) => t,
-            _ => unreachable!("a face has an axis"),
-        },
-    }
+    let axis = match e {
+        WireEntry::At(t) => return t,
+        WireEntry::AcrossX => 0,
+        WireEntry::AcrossY => 1,
+        WireEntry::AcrossDepth => 2,
+    };
+    let rr = region_ray(ray, w.region, ctx);
+    ctx.cells.entry_crossing(&rr, w.super_cell, w.cell, axis)
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
