@@ -126,11 +126,16 @@ pub fn measure(
     let mut done = 0;
     let mut first: Option<Film> = None;
     let mut rows: Vec<ScaleRow> = Vec::new();
-    // The whole structure's bytes: a one-node share holds all of it.
+    // The whole structure's bytes: what one node holds (the structure a
+    // single node builds, all of it its own). No pre-pass is needed for
+    // that, so no plan.
     let whole_structure = {
-        let plan =
-            machine::host::Plan::new(scene, &topo.clone().with_overrides(Some(0), None)?, opts);
-        plan.shares[0].0.bytes() as u64
+        let one_node = crate::cells::CellOptions {
+            min_super_cells: 0,
+            ..opts.cells
+        };
+        let cs = crate::cells::CellStructure::build(scene, opts.width, opts.height, one_node);
+        cs.restrict(scene, &|_, _| true).0.bytes() as u64
     };
     let mut check = |film: &Film, d: u32| -> Result<()> {
         match &first {
