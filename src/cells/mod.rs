@@ -21,7 +21,7 @@ use crate::trace::CameraFrame;
 
 pub use bsp::{BspNode, Partition, SegmentChoice};
 pub use projection::{CamBox, CamRay, Rect, Region, View};
-pub use traverse::{CellTracer, Walk, WalkPoint};
+pub use traverse::{CELL_WORK, CellTracer, TEST_WORK, Walk, WalkPoint};
 
 /// No subtree: the cell is empty.
 pub const NO_SUBTREE: u32 = u32::MAX;

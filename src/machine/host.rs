@@ -185,8 +185,7 @@ impl Plan {
         };
         let cells = CellStructure::build(scene, opts.width, opts.height, cell_opts);
         let t_pre = Instant::now();
-        let work = mapping::estimate(&cells, scene, opts.width, opts.height, opts.mapping, d);
-        let owner = mapping::assign(&cells, &work, d);
+        let (work, owner) = mapping::map(&cells, scene, opts.width, opts.height, opts.mapping, d);
         let prepass_seconds = t_pre.elapsed().as_secs_f64();
         let shares: Vec<(CellStructure, Scene)> = (0..n as u16)
             .map(|i| cells.restrict(scene, &|r, s| owner[r as usize][s as usize] == i))

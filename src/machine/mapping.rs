@@ -1,27 +1,27 @@
 //! Which node owns which super cell (its cells, their subtrees, the pixels
-//! of its pixel area). Super cells are ordered by a depth-first walk of the
-//! screen BSP, so that runs of the order are compact screen regions; the
-//! order is cut into 2^d runs and run i goes to node `gray(i)`, so that
-//! neighbouring regions land on hypercube neighbours (consecutive Gray
-//! codes differ in one bit). Where the cuts fall is the load balance:
+//! of its pixel area). Each region's screen is cut into a grid of
+//! `2^dx` columns by `2^dy` rows of equal estimated work, and the cell in
+//! column c, row r goes to node `gray(c) << dy | gray(r)`, so that
+//! neighbouring screen regions land on hypercube neighbours (`grid`); then
+//! super cells move between neighbouring regions until the loads are even
+//! (`refine`). The estimate is the load balance:
 //!
 //! * `Balanced` (default) weighs each super cell by the work a cheap
-//!   pre-pass measured there: every `stride`-th pixel of every
-//!   `stride`-th row traced through the whole structure on the host, all
-//!   its ray kinds, counting cells entered and intersection tests (a
-//!   mailbox hit counting as a test, since on the machine it mostly is
-//!   one, on another node), after Priol and Bouatouch's static load
-//!   balancing on the iPSC; on more than one node, a second pre-pass walks
-//!   as the machine will under the first pass's mapping (`prepass`).
-//!   Measured on the iPSC-D5, against counting
-//!   tests alone: the sphereflake at 1024x1024 on 32 nodes 1.33 against
-//!   1.37-1.41 busy imbalance, on 8 nodes 1.10 against 1.14; the jagged
-//!   ball on 8 nodes 1.49 against 1.65 (makespan 1,300 against 1,510
-//!   virtual seconds);
+//!   pre-pass measured there: every `PREPASS_STRIDE`-th pixel of every
+//!   `PREPASS_STRIDE`-th row traced through the whole structure on the
+//!   host, all its ray kinds, counting cells entered and intersection
+//!   tests, after Priol and Bouatouch's static load balancing on the
+//!   iPSC. On more than one node the pre-pass then walks as the machine
+//!   will under the mapping so far (a ray moves to a node where its part
+//!   in a cell meets that cell's content, with cold mailboxes; the walk
+//!   through other cells is its node's work), and the mapping is refined
+//!   against it (`REFINE_PASSES`). So walked, the pre-pass predicts each
+//!   node's cells and tests: at every pixel, exactly; at every 8th of
+//!   every 8th row, correlated at 0.99 with what the nodes then count;
 //! * `EqualArea`, the naive split, weighs each super cell by its share of
 //!   the image, so that every node owns as many pixels.
 
-use crate::cells::{BspNode, CellStructure, CellTracer, Partition, Region};
+use crate::cells::{CellStructure, CellTracer, Region};
 use crate::machine::routing::gray;
 use crate::render::pixel_jobs;
 use crate::scene::Scene;
@@ -47,78 +47,97 @@ impl Mapping {
 /// Pixels per side of the pre-pass's sampling grid cell.
 pub const PREPASS_STRIDE: u32 = 8;
 
-/// The estimated work of every super cell, per region.
-pub fn estimate(
+/// The estimated work of every super cell, per region, and the owner of
+/// every super cell for `2^d` nodes (`assign`, then for `Balanced` the
+/// `refine` rounds against pre-passes walked under the mapping).
+pub fn map(
     cs: &CellStructure,
     scene: &Scene,
     width: u32,
     height: u32,
     mapping: Mapping,
     d: u32,
-) -> [Vec<f64>; 2] {
+) -> ([Vec<f64>; 2], [Vec<u16>; 2]) {
     match mapping {
-        Mapping::EqualArea => Region::BOTH.map(|r| {
-            let rc = cs.region(r);
-            if r == Region::Back {
-                // No pixel lies behind the eye: spread those evenly.
-                return vec![0.0; rc.supers.len()];
-            }
-            let cam = CameraFrame::new(scene, width, height);
-            rc.supers
-                .iter()
-                .map(|s| {
-                    let w = (s.rect.x1.min(cam.half_w) - s.rect.x0.max(-cam.half_w)).max(0.0);
-                    let h = (s.rect.y1.min(cam.half_h) - s.rect.y0.max(-cam.half_h)).max(0.0);
-                    w * h
-                })
-                .collect()
-        }),
+        Mapping::EqualArea => {
+            let work = Region::BOTH.map(|r| {
+                let rc = cs.region(r);
+                if r == Region::Back {
+                    // No pixel lies behind the eye: spread those evenly.
+                    return vec![0.0; rc.supers.len()];
+                }
+                let cam = CameraFrame::new(scene, width, height);
+                rc.supers
+                    .iter()
+                    .map(|s| {
+                        let w = (s.rect.x1.min(cam.half_w) - s.rect.x0.max(-cam.half_w)).max(0.0);
+                        let h = (s.rect.y1.min(cam.half_h) - s.rect.y0.max(-cam.half_h)).max(0.0);
+                        w * h
+                    })
+                    .collect()
+            });
+            let owner = assign(cs, &work, d);
+            (work, owner)
+        }
         Mapping::Balanced => {
-            let first = prepass(cs, scene, width, height, None);
+            let mut work = prepass(cs, scene, width, height, None, PREPASS_STRIDE);
+            let mut owner = assign(cs, &work, d);
             if d == 0 {
-                return first;
+                return (work, owner);
             }
-            // Walked again as the machine will: cold mailboxes where a ray
-            // crosses to another owner under the first pass's mapping.
-            let owner = assign(cs, &first, d);
-            prepass(cs, scene, width, height, Some(owner))
+            // Walked again as the machine will, under the mapping so far:
+            // the work a ray repeats after crossing to another node falls
+            // on that node. The mapping then moves only a few super cells
+            // (`refine`), so the walk stays close to what it measured.
+            for _ in 0..REFINE_PASSES {
+                work = prepass(
+                    cs,
+                    scene,
+                    width,
+                    height,
+                    Some(owner.clone()),
+                    PREPASS_STRIDE,
+                );
+                refine(cs, &work, &mut owner, d);
+            }
+            (work, owner)
         }
     }
 }
 
 /// Traces every `PREPASS_STRIDE`-th pixel of every `PREPASS_STRIDE`-th row
 /// through the whole structure, all its ray kinds, recording the work per
-/// super cell; with `owner`, as the machine walks under that mapping (a
-/// ray that crosses to another node's super cell meets again, as tests,
-/// the primitives it met before).
+/// super cell; with `owner`, as the machine walks under that mapping
+/// (`CellTracer::record_work_for`).
 ///
-/// Why two passes: the first pass alone balances what one node would do,
-/// but on the machine the work a ray repeats after a crossing falls on
-/// the node it crosses to. Sphereflake level 4, 1024x1024, 32 nodes, four
-/// alternating runs each: busy imbalance 1.28-1.34 with one pass,
-/// 1.25-1.27 with two (makespan 3,350-4,130 against 3,250-3,850 virtual
-/// seconds); a third pass changed nothing. (The nodes' intersection tests
-/// are less even with two, 1.56 against 1.42 max/mean, but busy time is
-/// what the modelled nodes spend.)
+/// Why walk as the machine does: the first pass alone balances what one
+/// node would do, but on the machine the work a ray repeats after a
+/// crossing falls on the node it crosses to, and a node walks through the
+/// cells whose content its rays miss. An earlier model that made every
+/// change of owner a crossing (the machine's walk-through ignored)
+/// counted 26 million tests where the nodes made 20 million, and its
+/// per-node loads did not correlate with the nodes' (-0.1).
 fn prepass(
     cs: &CellStructure,
     scene: &Scene,
     width: u32,
     height: u32,
     owner: Option<[Vec<u16>; 2]>,
+    stride: u32,
 ) -> [Vec<f64>; 2] {
     let cam = CameraFrame::new(scene, width, height);
     let shader = Shader::new(scene);
+    let skeleton = owner.is_some().then(|| cs.restrict(scene, &|_, _| false).0);
     let mut tracer = CellTracer::new(cs, scene);
-    match owner {
-        Some(o) => tracer.record_work_for(o),
-        None => tracer.record_work(),
+    match (owner, &skeleton) {
+        (Some(o), Some(sk)) => tracer.record_work_for(o, sk),
+        _ => tracer.record_work(),
     }
     let mut film = Film::new(width, height);
     let (mut counts, mut stack, mut jobs) = (RayCounts::default(), Vec::new(), Vec::new());
-    let half = PREPASS_STRIDE / 2;
-    for j in (half.min(height - 1)..height).step_by(PREPASS_STRIDE as usize) {
-        for i in (half.min(width - 1)..width).step_by(PREPASS_STRIDE as usize) {
+    let half = stride / 2;
+    for j in (half.min(height - 1)..height).step_by(stride as usize) {
+        for i in (half.min(width - 1)..width).step_by(stride as usize) {
             jobs.clear();
             pixel_jobs(&cam, i, j, 1, &mut jobs);
             for job in jobs.drain(..) {
@@ -130,65 +149,380 @@ fn prepass(
     [0, 1].map(|r| work[r].iter().map(|&w| w as f64).collect())
 }
 
-/// Super cells of a partition in depth-first BSP order.
-pub fn bsp_order(p: &Partition) -> Vec<u32> {
-    let mut out = Vec::with_capacity(p.leaves.len());
-    let mut stack = vec![0u32];
-    while let Some(n) = stack.pop() {
-        match p.nodes[n as usize] {
-            BspNode::Leaf(l) => out.push(l),
-            BspNode::Split { lo, hi, .. } => {
-                stack.push(hi);
-                stack.push(lo);
-            }
-        }
-    }
-    out
+/// Each node's work under `owner` as the pre-pass predicts it, from every
+/// `stride`-th pixel of every `stride`-th row (1: every pixel), in the
+/// units of `CellTracer::record_work`: cells entered and
+/// `cells::TEST_WORK` per intersection test.
+pub fn predicted_loads(
+    cs: &CellStructure,
+    scene: &Scene,
+    width: u32,
+    height: u32,
+    owner: &[Vec<u16>; 2],
+    d: u32,
+    stride: u32,
+) -> Vec<f64> {
+    let work = prepass(cs, scene, width, height, Some(owner.clone()), stride.max(1));
+    loads(&work, owner, d)
 }
 
-/// The owner of every super cell of each region, for `2^d` nodes: the
-/// regions' super cells in BSP order (front, then back) cut into runs of
-/// equal estimated work, run i on node `gray(i)`. Every super cell also
-/// weighs a little (a share of the mean), so that work-free stretches
-/// still spread out.
-pub fn assign(cs: &CellStructure, work: &[Vec<f64>; 2], d: u32) -> [Vec<u16>; 2] {
-    let nodes = 1usize << d;
-    let order: Vec<(usize, u32)> = Region::BOTH
-        .iter()
-        .flat_map(|&r| {
-            bsp_order(&cs.region(r).partition)
-                .into_iter()
-                .map(move |s| (r as usize, s))
-        })
-        .collect();
-    let total: f64 = order.iter().map(|&(r, s)| work[r][s as usize]).sum();
-    let floor = 0.01 * total.max(1.0) / order.len().max(1) as f64;
-    let weight = |r: usize, s: u32| work[r][s as usize] + floor;
-    let sum: f64 = order.iter().map(|&(r, s)| weight(r, s)).sum();
-    let mut owner = Region::BOTH.map(|r| vec![0u16; cs.region(r).supers.len()]);
-    let mut acc = 0.0;
-    for &(r, s) in &order {
-        let w = weight(r, s);
-        // The run whose share of the total contains this cell's middle.
-        let run = (((acc + w / 2.0) / sum) * nodes as f64) as usize;
-        acc += w;
-        owner[r][s as usize] = gray(run.min(nodes - 1) as u16);
-    }
-    owner
-}
-
-/// The largest estimated load of a node against the mean (1 is perfect).
-pub fn predicted_imbalance(work: &[Vec<f64>; 2], owner: &[Vec<u16>; 2], d: u32) -> f64 {
+/// The sum of the work of each node's super cells.
+fn loads(work: &[Vec<f64>; 2], owner: &[Vec<u16>; 2], d: u32) -> Vec<f64> {
     let mut load = vec![0.0; 1 << d];
     for r in 0..2 {
         for (s, &o) in owner[r].iter().enumerate() {
             load[o as usize] += work[r][s];
         }
     }
+    load
+}
+
+/// How many times the mapping is refined against a pre-pass walked under
+/// it (`map`). Sphereflake level 4, 1024x1024, 32 nodes, the imbalance of
+/// the nodes' counted work (cells + 4 tests, which is deterministic):
+/// 1.24 after one, 1.18 after two, 1.22 after four (each move changes the
+/// work it was chosen by; more rounds also fragment the regions: 3.61,
+/// 3.67 and 3.99 million hops).
+const REFINE_PASSES: usize = 2;
+
+/// A super cell's place in the mapping: its region, index, the centre of
+/// its rectangle (clamped to the finite part of the plane) and its weight.
+#[derive(Clone, Copy)]
+struct Item {
+    region: usize,
+    s: u32,
+    x: f64,
+    y: f64,
+    w: f64,
+}
+
+/// The owner of every super cell of each region, for `2^d` nodes: a
+/// Gray-coded grid (`grid`), then refined (`refine`).
+pub fn assign(cs: &CellStructure, work: &[Vec<f64>; 2], d: u32) -> [Vec<u16>; 2] {
+    let mut owner = grid(cs, work, d);
+    refine(cs, work, &mut owner, d);
+    owner
+}
+
+/// Every super cell also weighs a little (a share of the mean), so that
+/// work-free stretches still spread out.
+fn weights(work: &[Vec<f64>; 2]) -> [Vec<f64>; 2] {
+    let count: usize = work.iter().map(Vec::len).sum();
+    let total: f64 = work.iter().flatten().sum();
+    let floor = 0.01 * total.max(1.0) / count.max(1) as f64;
+    work.clone()
+        .map(|v| v.into_iter().map(|w| w + floor).collect())
+}
+
+/// The first mapping: each region's screen is cut into `2^dx` columns of
+/// equal weight, each column into `2^dy` rows of equal weight
+/// (`dx + dy = d`, the extra bit on the axis along which the work spreads
+/// more), and the super cell whose centre falls in column `c`, row `r`
+/// goes to node `gray(c) << dy | gray(r)`. Neighbouring columns and
+/// neighbouring rows then differ in one bit: a ray crossing to the next
+/// region on screen goes one hop.
+///
+/// Why not one run of a space-filling order (the BSP's depth-first order
+/// cut into `2^d` runs, run i on `gray(i)`, as before): there only
+/// consecutive runs are neighbours; regions side by side on screen but
+/// apart in the order are several hops apart, and rays cross sideways.
+/// Sphereflake level 4, 1024x1024, 32 nodes: 5.17 million hops, 1.79
+/// million of them forwarding, 81 bytes per ray; with the grid 3.48
+/// million, 0.58 million and 59.
+fn grid(cs: &CellStructure, work: &[Vec<f64>; 2], d: u32) -> [Vec<u16>; 2] {
+    let weight = weights(work);
+    let mut owner = Region::BOTH.map(|r| vec![0u16; cs.region(r).supers.len()]);
+    for r in Region::BOTH {
+        let items = items(cs, &weight, r);
+        if items.is_empty() {
+            continue;
+        }
+        let spread = |f: fn(&Item) -> f64| {
+            let sum: f64 = items.iter().map(|i| i.w).sum();
+            let mean = items.iter().map(|i| i.w * f(i)).sum::<f64>() / sum;
+            items
+                .iter()
+                .map(|i| i.w * (f(i) - mean).powi(2))
+                .sum::<f64>()
+                / sum
+        };
+        let wide = spread(|i| i.x) >= spread(|i| i.y);
+        let dx = if wide { d.div_ceil(2) } else { d / 2 };
+        let dy = d - dx;
+        for (c, column) in cut(items, |i| i.x, 1 << dx).into_iter().enumerate() {
+            for (row, cell) in cut(column, |i| i.y, 1 << dy).into_iter().enumerate() {
+                let node = gray(c as u16) << dy | gray(row as u16);
+                for i in cell {
+                    owner[i.region][i.s as usize] = node;
+                }
+            }
+        }
+    }
+    owner
+}
+
+/// The super cells of region `r` with their centres and weights.
+fn items(cs: &CellStructure, weight: &[Vec<f64>; 2], r: Region) -> Vec<Item> {
+    let rc = cs.region(r);
+    // Unbounded rectangles (the partition is of the whole plane) are
+    // clamped to the span of the finite coordinates.
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for s in &rc.supers {
+        for (k, v) in [
+            (0, s.rect.x0),
+            (0, s.rect.x1),
+            (1, s.rect.y0),
+            (1, s.rect.y1),
+        ] {
+            if v.is_finite() {
+                lo[k] = lo[k].min(v);
+                hi[k] = hi[k].max(v);
+            }
+        }
+    }
+    let mid = |a: f64, b: f64, k: usize| {
+        if lo[k] <= hi[k] {
+            (a.clamp(lo[k], hi[k]) + b.clamp(lo[k], hi[k])) / 2.0
+        } else {
+            0.0
+        }
+    };
+    rc.supers
+        .iter()
+        .enumerate()
+        .map(|(i, s)| Item {
+            region: r as usize,
+            s: i as u32,
+            x: mid(s.rect.x0, s.rect.x1, 0),
+            y: mid(s.rect.y0, s.rect.y1, 1),
+            w: weight[r as usize][i],
+        })
+        .collect()
+}
+
+/// `items` sorted by `key` and cut into `parts` runs of equal weight (an
+/// item goes to the run whose share of the total holds its middle).
+fn cut(mut items: Vec<Item>, key: fn(&Item) -> f64, parts: usize) -> Vec<Vec<Item>> {
+    items.sort_by(|a, b| key(a).total_cmp(&key(b)));
+    let sum: f64 = items.iter().map(|i| i.w).sum();
+    let mut out = vec![Vec::new(); parts];
+    let mut acc = 0.0;
+    for i in items {
+        let run = (((acc + i.w / 2.0) / sum) * parts as f64) as usize;
+        acc += i.w;
+        out[run.min(parts - 1)].push(i);
+    }
+    out
+}
+
+/// Evens out the loads by moving super cells, one at a time, from the
+/// most loaded node to a node that owns a super cell beside it on screen
+/// (so regions stay compact and crossings stay short), the move that
+/// lowers the larger of the two loads most, until no move lowers the
+/// largest load. The grid's cuts balance columns and rows, but a super
+/// cell is never split, and a few heavy ones (the sphereflake's big
+/// sphere) leave some nodes well above the mean.
+fn refine(cs: &CellStructure, work: &[Vec<f64>; 2], owner: &mut [Vec<u16>; 2], d: u32) {
+    let weight = weights(work);
+    let mut load = loads(&weight, owner, d);
+    let beside = Region::BOTH.map(|r| adjacent(&cs.region(r).supers));
+    // Each move scans every super cell: a bound keeps huge structures
+    // cheap (a few moves per node is what balancing takes).
+    for _ in 0..8 * load.len() {
+        let h = (0..load.len())
+            .max_by(|&a, &b| load[a].total_cmp(&load[b]))
+            .expect("a node");
+        let mut best: Option<(usize, usize, u16, f64)> = None;
+        for r in 0..2 {
+            for (s, &o) in owner[r].iter().enumerate() {
+                if o as usize != h {
+                    continue;
+                }
+                let w = weight[r][s];
+                for &t in &beside[r][s] {
+                    let to = owner[r][t as usize];
+                    if to as usize == h {
+                        continue;
+                    }
+                    let worst = (load[h] - w).max(load[to as usize] + w);
+                    if worst < load[h] && best.is_none_or(|b| worst < b.3) {
+                        best = Some((r, s, to, worst));
+                    }
+                }
+            }
+        }
+        let Some((r, s, to, _)) = best else { break };
+        load[h] -= weight[r][s];
+        load[to as usize] += weight[r][s];
+        owner[r][s] = to;
+    }
+}
+
+/// For each super cell, the super cells that share a piece of an edge
+/// with it. Neighbours meet on a splitting line, so their coordinates
+/// there are the same number.
+fn adjacent(supers: &[crate::cells::SuperCell]) -> Vec<Vec<u32>> {
+    use std::collections::HashMap;
+    /// A cell's extent along a line, and the cell.
+    type Span = (f64, f64, u32);
+    let mut out = vec![Vec::new(); supers.len()];
+    // Per axis: for each line, the spans (along the other axis) of the
+    // cells ending there and of those starting there.
+    for axis in 0..2 {
+        let mut lines: HashMap<u64, (Vec<Span>, Vec<Span>)> = HashMap::new();
+        for (i, c) in supers.iter().enumerate() {
+            let r = &c.rect;
+            let (a0, a1, span) = if axis == 0 {
+                (r.x0, r.x1, (r.y0, r.y1))
+            } else {
+                (r.y0, r.y1, (r.x0, r.x1))
+            };
+            lines
+                .entry(a1.to_bits())
+                .or_default()
+                .0
+                .push((span.0, span.1, i as u32));
+            lines
+                .entry(a0.to_bits())
+                .or_default()
+                .1
+                .push((span.0, span.1, i as u32));
+        }
+        for (_, (mut ending, mut starting)) in lines {
+            ending.sort_by(|a, b| a.0.total_cmp(&b.0));
+            starting.sort_by(|a, b| a.0.total_cmp(&b.0));
+            // Two sorted lists of intervals tiling (parts of) the line:
+            // walk them together, pairing the ones that overlap.
+            let (mut i, mut j) = (0, 0);
+            while i < ending.len() && j < starting.len() {
+                let (a, b) = (ending[i], starting[j]);
+                if a.1.min(b.1) > a.0.max(b.0) {
+                    out[a.2 as usize].push(b.2);
+                    out[b.2 as usize].push(a.2);
+                }
+                if a.1 <= b.1 {
+                    i += 1;
+                } else {
+                    j += 1;
+                }
+            }
+        }
+    }
+    out
+}
+
+/// The largest estimated load of a node against the mean (1 is perfect).
+pub fn predicted_imbalance(work: &[Vec<f64>; 2], owner: &[Vec<u16>; 2], d: u32) -> f64 {
+    let load = loads(work, owner, d);
     let mean = load.iter().sum::<f64>() / load.len() as f64;
     if mean > 0.0 {
         load.iter().cloned().fold(0.0, f64::max) / mean
     } else {
         1.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cells::{CellOptions, Rect};
+    use crate::scene::load::compile_model;
+
+    fn flake(min_super_cells: usize) -> (CellStructure, Scene) {
+        let model = crate::r#gen::sphereflake::sphereflake(2);
+        let scene = compile_model(&model, std::path::Path::new("flake.ron"))
+            .expect("compiles")
+            .0;
+        let opts = CellOptions {
+            min_super_cells,
+            ..CellOptions::default()
+        };
+        (CellStructure::build(&scene, 64, 64, opts), scene)
+    }
+
+    /// Whether two rectangles share a piece of an edge.
+    fn touch(a: &Rect, b: &Rect) -> bool {
+        let overlap = |a0: f64, a1: f64, b0: f64, b1: f64| a1.min(b1) > a0.max(b0);
+        ((a.x1 == b.x0 || b.x1 == a.x0) && overlap(a.y0, a.y1, b.y0, b.y1))
+            || ((a.y1 == b.y0 || b.y1 == a.y0) && overlap(a.x0, a.x1, b.x0, b.x1))
+    }
+
+    #[test]
+    fn neighbours_are_the_super_cells_sharing_an_edge() {
+        let (cs, _) = flake(64);
+        for r in Region::BOTH {
+            let supers = &cs.region(r).supers;
+            let beside = adjacent(supers);
+            for (i, a) in supers.iter().enumerate() {
+                let mut want: Vec<u32> = (0..supers.len() as u32)
+                    .filter(|&j| j as usize != i && touch(&a.rect, &supers[j as usize].rect))
+                    .collect();
+                let mut got = beside[i].clone();
+                want.sort_unstable();
+                got.sort_unstable();
+                assert_eq!(got, want, "{r:?} super cell {i}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_grid_puts_screen_neighbours_on_near_nodes_and_shares_the_work() {
+        let (cs, _) = flake(64);
+        let d = 3;
+        let work = Region::BOTH.map(|r| vec![1.0; cs.region(r).supers.len()]);
+        let owner = grid(&cs, &work, d);
+        let rc = cs.region(Region::Front);
+        let beside = adjacent(&rc.supers);
+        // Columns and rows are Gray coded: side by side on screen is at
+        // most one hop per axis apart.
+        let mut hops = 0;
+        let mut pairs = 0;
+        for (s, b) in beside.iter().enumerate() {
+            for &t in b {
+                let h = (owner[0][s] ^ owner[0][t as usize]).count_ones();
+                assert!(h <= 2, "super cells {s} and {t}: {h} hops");
+                hops += h;
+                pairs += 1;
+            }
+        }
+        assert!(
+            f64::from(hops) < 0.5 * f64::from(pairs),
+            "{hops} hops over {pairs} pairs"
+        );
+        let load = loads(&work, &owner, d);
+        let mean = load.iter().sum::<f64>() / load.len() as f64;
+        for (n, l) in load.iter().enumerate() {
+            assert!(
+                *l > 0.5 * mean && *l < 1.5 * mean,
+                "node {n}: {l} against {mean}"
+            );
+        }
+    }
+
+    #[test]
+    fn refining_never_raises_the_largest_load() {
+        let (cs, _) = flake(64);
+        let d = 3;
+        // Uneven work: a few heavy super cells.
+        let work = Region::BOTH.map(|r| {
+            (0..cs.region(r).supers.len())
+                .map(|s| {
+                    if s % 17 == 0 {
+                        40.0
+                    } else {
+                        1.0 + (s % 5) as f64
+                    }
+                })
+                .collect::<Vec<f64>>()
+        });
+        let mut owner = grid(&cs, &work, d);
+        let weight = weights(&work);
+        let before = loads(&weight, &owner, d);
+        refine(&cs, &work, &mut owner, d);
+        let after = loads(&weight, &owner, d);
+        let max = |v: &[f64]| v.iter().cloned().fold(0.0, f64::max);
+        assert!(max(&after) <= max(&before), "{before:?} -> {after:?}");
+        assert!((before.iter().sum::<f64>() - after.iter().sum::<f64>()).abs() < 1e-9);
+        assert!(owner.iter().flatten().all(|&o| o < 1 << d));
     }
 }

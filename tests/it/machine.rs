@@ -112,6 +112,33 @@ fn a_scene_too_large_for_one_node_is_refused_then_fits_on_32() {
     check_stats(&scene, &stats);
 }
 
+/// The pre-pass that the mapping balances by, walked at every pixel under
+/// the machine's own mapping, predicts what each node then counts: the
+/// cells its walks enter and its intersection tests. (This is what lets
+/// the balanced mapping balance: an earlier pre-pass took every change of
+/// owner for a crossing and its loads did not correlate with the nodes'.)
+#[test]
+fn the_full_pre_pass_predicts_every_nodes_work() {
+    use hypercast::cells::{CELL_WORK, TEST_WORK};
+    use hypercast::machine::host::Plan;
+    let scene = load_scene(&repo("scenes/sphereflake2.nff")).unwrap();
+    let (w, h, d) = (96, 96, 3);
+    let o = MachineOptions::new(w, h, 1);
+    let plan = Plan::new(&scene, &topo(d), &o);
+    let predicted = machine::mapping::predicted_loads(&plan.cells, &scene, w, h, &plan.owner, d, 1);
+    let (_, stats, _) = machine::render(&scene, &topo(d), &o, &|_| {}).unwrap();
+    let total: f64 = predicted.iter().sum();
+    for n in &stats.per_node {
+        let counted = (CELL_WORK * n.cells_visited + TEST_WORK * n.intersection_tests) as f64;
+        let p = predicted[n.node as usize];
+        assert!(
+            (p - counted).abs() <= 0.01 * counted + 1e-4 * total,
+            "node {}: predicted {p}, counted {counted}; {predicted:?}",
+            n.node
+        );
+    }
+}
+
 #[test]
 fn random_scenes_on_random_dimensions_equal_one_node() {
     use hypercast::r#gen::random::{RandomCsgOptions, random_csg};
