@@ -109,7 +109,34 @@ struct Pending {
 /// Builds the partition of the plane for `rects` (indexed by primitive
 /// number; `None` for primitives not in this region).
 pub fn partition(rects: &[Option<Rect>], choice: SegmentChoice) -> Partition {
-    partition_in(rects, choice, None, None, 0)
+    partition_in(rects, choice, None, None, 0, &[])
+}
+
+/// A part of the plane where the leaves must be small: a region whose
+/// overlap with `rect` (finite) is larger than `max_area` is split at the
+/// middle of the overlap's longer side. The machine marks so the super
+/// cells that its pre-pass found heavier than a node should be
+/// (`machine::mapping::hot`), since a super cell is never split over
+/// nodes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hot {
+    pub rect: Rect,
+    pub max_area: f64,
+}
+
+impl Hot {
+    /// Where to split `region`, if the spot asks for it.
+    fn split(&self, region: &Rect) -> Option<(u8, f64)> {
+        let lo = |a: usize| region.lo(a).max(self.rect.lo(a));
+        let hi = |a: usize| region.hi(a).min(self.rect.hi(a));
+        let (w, h) = (hi(0) - lo(0), hi(1) - lo(1));
+        if !(w > 0.0 && h > 0.0 && w * h > self.max_area) {
+            return None;
+        }
+        let a = usize::from(h > w);
+        let c = (lo(a) + hi(a)) / 2.0;
+        (c > region.lo(a) && c < region.hi(a)).then_some((a as u8, c))
+    }
 }
 
 /// `partition` with the screen window the primary rays sample, which the
@@ -125,6 +152,7 @@ pub fn partition_in(
     window: Option<Rect>,
     weights: Option<&[f64]>,
     min_leaves: usize,
+    hot: &[Hot],
 ) -> Partition {
     let mut segs = Vec::new();
     let mut prims = Vec::new();
@@ -170,6 +198,7 @@ pub fn partition_in(
             None
         } else {
             match choice {
+                _ if let Some(c) = hot.iter().find_map(|h| h.split(&p.rect)) => Some(c),
                 SegmentChoice::FewestSplits => choose(&p.segs),
                 SegmentChoice::Sampled => {
                     let force = leaves_if_stopped < min_leaves;
@@ -741,6 +770,36 @@ mod tests {
             .collect();
         let p = partition(&rects, SegmentChoice::Sampled);
         assert!(p.leaves.len() <= 16 * 2000 + 64);
+        check_stitches(&p);
+    }
+
+    #[test]
+    fn a_hot_spot_splits_the_leaves_over_it_small() {
+        let rects = vec![rect(-1.0, 1.0, -1.0, 1.0), rect(-0.2, 0.3, -0.1, 0.4)];
+        let plain = partition_in(&rects, SegmentChoice::Sampled, None, None, 0, &[]);
+        let spot = Hot {
+            rect: Rect {
+                x0: -0.2,
+                x1: 0.3,
+                y0: -0.1,
+                y1: 0.4,
+            },
+            max_area: 0.25 * 0.25 / 4.0,
+        };
+        let p = partition_in(&rects, SegmentChoice::Sampled, None, None, 0, &[spot]);
+        assert!(
+            p.leaves.len() > plain.leaves.len() + 4,
+            "{} leaves",
+            p.leaves.len()
+        );
+        let overlap = |r: &Rect| {
+            let w = r.x1.min(spot.rect.x1) - r.x0.max(spot.rect.x0);
+            let h = r.y1.min(spot.rect.y1) - r.y0.max(spot.rect.y0);
+            if w > 0.0 && h > 0.0 { w * h } else { 0.0 }
+        };
+        for l in &p.leaves {
+            assert!(overlap(&l.rect) <= spot.max_area, "{:?}", l.rect);
+        }
         check_stitches(&p);
     }
 }

@@ -19,7 +19,7 @@ use crate::geom::Aabb;
 use crate::scene::Scene;
 use crate::trace::CameraFrame;
 
-pub use bsp::{BspNode, Partition, SegmentChoice};
+pub use bsp::{BspNode, Hot, Partition, SegmentChoice};
 pub use projection::{CamBox, CamRay, Rect, Region, View};
 pub use traverse::{CELL_WORK, CellTracer, TEST_WORK, Walk, WalkPoint};
 
@@ -249,6 +249,18 @@ impl CellStructure {
 
     /// Builds the subdivision (sections 3-6) of `scene` for its camera.
     pub fn build(scene: &Scene, width: u32, height: u32, opts: CellOptions) -> CellStructure {
+        Self::build_with_hot(scene, width, height, opts, &[[].as_slice(), &[]])
+    }
+
+    /// `build`, with the leaves of each region's partition kept small
+    /// inside its hot spots (`bsp::Hot`).
+    pub fn build_with_hot(
+        scene: &Scene,
+        width: u32,
+        height: u32,
+        opts: CellOptions,
+        hot: &[&[bsp::Hot]; 2],
+    ) -> CellStructure {
         let start = Instant::now();
         let cam = CameraFrame::new(scene, width, height);
         let view = View::new(&cam);
@@ -312,8 +324,14 @@ impl CellStructure {
             } else {
                 0
             };
-            let mut partition =
-                bsp::partition_in(&rects, opts.choice, window, Some(&weights), min_leaves);
+            let mut partition = bsp::partition_in(
+                &rects,
+                opts.choice,
+                window,
+                Some(&weights),
+                min_leaves,
+                hot[region as usize],
+            );
             splits += partition.splits;
             let cam_boxes: Vec<Option<projection::CamBox>> = prim_box
                 .iter()
