@@ -52,6 +52,9 @@ pub struct ScaleRow {
     /// of the balance that, unlike busy time, does not move with the
     /// host's load (busy time follows it closely, not exactly).
     pub imbalance_tests: f64,
+    /// The same for the work the balanced mapping evens out: cells
+    /// entered and `cells::TEST_WORK` per test (`machine::mapping`).
+    pub imbalance_work: f64,
 }
 
 /// Parses `--dims`: `A..B` (inclusive) or a list `0,2,5`.
@@ -216,12 +219,16 @@ pub fn measure(
             imbalance_tests: max_over_mean(
                 rep.per_node.iter().map(|n| n.intersection_tests as f64),
             ),
+            imbalance_work: max_over_mean(rep.per_node.iter().map(|n| {
+                (crate::cells::CELL_WORK * n.cells_visited
+                    + crate::cells::TEST_WORK * n.intersection_tests) as f64
+            })),
         });
     }
     Ok(rows)
 }
 
-const HEADER: [&str; 23] = [
+const HEADER: [&str; 24] = [
     "dimension",
     "nodes",
     "wall_seconds",
@@ -245,9 +252,10 @@ const HEADER: [&str; 23] = [
     "structure_bytes",
     "structure_ratio",
     "imbalance_tests",
+    "imbalance_work",
 ];
 
-fn fields(r: &ScaleRow) -> [String; 23] {
+fn fields(r: &ScaleRow) -> [String; 24] {
     [
         r.dimension.to_string(),
         r.nodes.to_string(),
@@ -275,6 +283,7 @@ fn fields(r: &ScaleRow) -> [String; 23] {
         r.structure_bytes.to_string(),
         format!("{:.3}", r.structure_ratio),
         format!("{:.3}", r.imbalance_tests),
+        format!("{:.3}", r.imbalance_work),
     ]
 }
 

@@ -614,6 +614,7 @@ fn scale_writes_the_table_csv_and_plot() {
             "imbalance_balanced",
             "imbalance_equal_area",
             "imbalance_tests",
+            "imbalance_work",
         ] {
             assert!(num(r, k) >= 1.0, "{k} {csv}");
         }
