@@ -969,15 +969,7 @@ impl CellTracer<'_> {
                 // A cell held elsewhere is walked through here when the
                 // ray's part in it misses the hull of its content: the
                 // owner would find nothing, and the ray saves a message.
-                if is_remote(subtree)
-                    && !self.slab.misses_hull(
-                        &rc.remote_hull[(subtree - REMOTE) as usize],
-                        &self.cs.scene_box,
-                        ray,
-                        t_in,
-                        t_end,
-                    )
-                {
+                if self.meets_remote(rc, k, ray, t_in, t_end) {
                     return Walk::Remote(WalkPoint {
                         region,
                         super_cell: s,
@@ -1031,6 +1023,25 @@ impl CellTracer<'_> {
     }
 }
 
+impl CellTracer<'_> {
+    /// Whether cell `k` of `rc` is held elsewhere and the ray's part in it
+    /// (`t_in` to `t_end`) meets the hull of its content: where a walk
+    /// stops and the ray moves to the owner. The machine's walk and the
+    /// mapping's pre-pass (`machine_step`) decide by this one test.
+    #[inline]
+    fn meets_remote(&self, rc: &RegionCells, k: u32, ray: &Ray, t_in: f64, t_end: f64) -> bool {
+        let t = rc.subtree[k as usize];
+        is_remote(t)
+            && !self.slab.misses_hull(
+                &rc.remote_hull[(t - REMOTE) as usize],
+                &self.cs.scene_box,
+                ray,
+                t_in,
+                t_end,
+            )
+    }
+}
+
 /// Where the ray is on the machine, when recording for a mapping: its
 /// node, and the super cell whose work the node's walk is booked to.
 #[derive(Clone, Copy)]
@@ -1066,17 +1077,7 @@ impl CellTracer<'_> {
         };
         match *on {
             Some(o) if o.node != node => {
-                let rc = skeleton.region(region);
-                let t = rc.subtree[k as usize];
-                let content = is_remote(t)
-                    && !self.slab.misses_hull(
-                        &rc.remote_hull[(t - REMOTE) as usize],
-                        &self.cs.scene_box,
-                        ray,
-                        t_in,
-                        t_end,
-                    );
-                if !content {
+                if !self.meets_remote(skeleton.region(region), k, ray, t_in, t_end) {
                     return Some((o.region, o.super_cell));
                 }
                 self.ray_id += 1;
