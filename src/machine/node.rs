@@ -157,16 +157,24 @@ fn ray_bytes(body: &ToNode) -> usize {
 
 /// A path waiting in a node, ordered so that the heap's top is the
 /// earliest arrival (ties by sample, so the order is deterministic).
+///
+/// The path itself is boxed: the heap moves its entries at every push and
+/// pop, and a path is some 200 bytes, work the single node (whose queue
+/// stays empty) never pays. The sphereflake at 384x384 on 32 nodes, under
+/// callgrind: the heap's pushes, pops and copies took 705 million
+/// instructions inline, 453 million boxed, against 2.5 billion in the
+/// walk.
 struct Queued {
     arrival: f64,
-    routed: Routed,
+    sample: u64,
+    routed: Box<Routed>,
 }
 
 impl Ord for Queued {
     fn cmp(&self, o: &Self) -> Ordering {
         o.arrival
             .total_cmp(&self.arrival)
-            .then(o.routed.path.sample.cmp(&self.routed.path.sample))
+            .then(o.sample.cmp(&self.sample))
     }
 }
 
@@ -540,7 +548,11 @@ impl<'a> Node<'a> {
         // by the node's processor, in the order messages arrive in virtual
         // time (taking one early would push the clock past work that
         // arrived before it).
-        self.queue.push(Queued { arrival, routed: r });
+        self.queue.push(Queued {
+            arrival,
+            sample: r.path.sample,
+            routed: Box::new(r),
+        });
         Ok(())
     }
 
@@ -607,14 +619,15 @@ impl<'a> Node<'a> {
         if let Some(q) = self.queue.pop() {
             self.report.waiting_seconds += (q.arrival - self.clock).max(0.0);
             self.clock = self.clock.max(q.arrival);
-            if q.routed.dest == self.id {
-                self.trace(q.routed.path)?;
+            let routed = *q.routed;
+            if routed.dest == self.id {
+                self.trace(routed.path)?;
             } else {
                 // Passing a path on costs the modelled node a message
                 // start-up (`send_cost`), not the host's time to do it.
                 let t0 = Instant::now();
                 self.report.paths_forwarded += 1;
-                self.route(q.routed)?;
+                self.route(routed)?;
                 self.excluded += t0.elapsed().as_secs_f64();
             }
             return Ok(true);
