@@ -206,27 +206,58 @@ fn prepass(
     stride: u32,
 ) -> [Vec<f64>; 2] {
     let cam = CameraFrame::new(scene, width, height);
-    let shader = Shader::new(scene);
     let skeleton = owner.is_some().then(|| cs.restrict(scene, &|_, _| false).0);
-    let mut tracer = CellTracer::new(cs, scene);
-    match (owner, &skeleton) {
-        (Some(o), Some(sk)) => tracer.record_work_for(o, sk),
-        _ => tracer.record_work(),
-    }
-    let mut film = Film::new(width, height);
-    let (mut counts, mut stack, mut jobs) = (RayCounts::default(), Vec::new(), Vec::new());
-    let half = stride / 2;
-    for j in (half.min(height - 1)..height).step_by(stride as usize) {
-        for i in (half.min(width - 1)..width).step_by(stride as usize) {
-            jobs.clear();
-            pixel_jobs(&cam, i, j, 1, &mut jobs);
-            for job in jobs.drain(..) {
-                shader.run_path(&mut tracer, job, &mut film, &mut counts, &mut stack);
-            }
-        }
-    }
-    let work = tracer.recorded_work().expect("recording");
-    [0, 1].map(|r| work[r].iter().map(|&w| w as f64).collect())
+    // On the host's cores, before any node starts, rows shared out in
+    // turn. Each pixel's work is counted by its own rays alone (mailboxes
+    // are keyed by ray), so the sums are the same for any thread count.
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let rows: Vec<u32> = (0..height)
+        .skip((stride / 2).min(height - 1) as usize)
+        .step_by(stride as usize)
+        .collect();
+    let parts: Vec<[Vec<u64>; 2]> = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..threads.min(rows.len()).max(1))
+            .map(|t| {
+                let (rows, owner, skeleton, cam) = (&rows, owner.clone(), &skeleton, &cam);
+                scope.spawn(move || {
+                    let shader = Shader::new(scene);
+                    let mut tracer = CellTracer::new(cs, scene);
+                    match (owner, skeleton) {
+                        (Some(o), Some(sk)) => tracer.record_work_for(o, sk),
+                        _ => tracer.record_work(),
+                    }
+                    let mut film = Film::new(width, height);
+                    let (mut counts, mut stack, mut jobs) =
+                        (RayCounts::default(), Vec::new(), Vec::new());
+                    for &j in rows.iter().skip(t).step_by(threads) {
+                        for i in ((stride / 2).min(width - 1)..width).step_by(stride as usize) {
+                            jobs.clear();
+                            pixel_jobs(cam, i, j, 1, &mut jobs);
+                            for job in jobs.drain(..) {
+                                shader.run_path(
+                                    &mut tracer,
+                                    job,
+                                    &mut film,
+                                    &mut counts,
+                                    &mut stack,
+                                );
+                            }
+                        }
+                    }
+                    tracer.recorded_work().expect("recording").clone()
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().expect("a pre-pass thread"))
+            .collect()
+    });
+    [0, 1].map(|r| {
+        (0..parts[0][r].len())
+            .map(|s| parts.iter().map(|p| p[r][s]).sum::<u64>() as f64)
+            .collect()
+    })
 }
 
 /// Each node's work under `owner` as the pre-pass predicts it, from every
