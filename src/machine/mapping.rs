@@ -293,7 +293,12 @@ fn loads(work: &[Vec<f64>; 2], owner: &[Vec<u16>; 2], d: u32) -> Vec<f64> {
 /// the nodes' counted work (cells + 4 tests, which is deterministic):
 /// 1.24 after one, 1.18 after two, 1.22 after four (each move changes the
 /// work it was chosen by; more rounds also fragment the regions: 3.61,
-/// 3.67 and 3.99 million hops).
+/// 3.67 and 3.99 million hops). Cutting the grid again, up to four times,
+/// by the mean of the work measured under the mappings so far, then one
+/// refine, evens the counted work better (sphereflake 1.09, jagged ball
+/// 1.15) for as many hops, but its mapping splits a few more subtrees
+/// over nodes: the sphereflake's structure over 32 nodes became 2.0001x
+/// the single node's, past issue 4's bound, so it is not used.
 const REFINE_PASSES: usize = 2;
 
 /// A super cell's place in the mapping: its region, index, the centre of
