@@ -658,6 +658,7 @@ pub fn machine_json(topo: &Topology, ms: &MachineStats) -> Vec<(&'static str, se
         ("imbalance", num(ms.imbalance)),
         ("predicted_imbalance", num(ms.predicted_imbalance)),
         ("prepass_seconds", num(ms.prepass_seconds)),
+        ("split_super_cells", json!(ms.split_super_cells)),
         (
             "peak_memory_bytes",
             json!(ms.per_node.iter().map(|n| n.peak_memory_bytes).max()),
@@ -757,6 +758,12 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
         "paths in flight     {} per node (each at most {} bytes)",
         plan.window, plan.path_bytes
     );
+    if plan.split_super_cells > 0 {
+        println!(
+            "split for balance   {} super cells over half a node's share, built {} more time(s)",
+            plan.split_super_cells, plan.rebuilds
+        );
+    }
     println!("node  super_cells  cells  primitives  memory_MiB  structure_MiB  estimated_work");
     let mut nodes_json = Vec::new();
     for (i, (share, local)) in plan.shares.iter().enumerate() {
@@ -802,6 +809,7 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
             ("memory_budget_bytes", json!(topo.node_memory)),
             ("replicated_scene_bytes", json!(plan.replicated_bytes)),
             ("window", json!(plan.window)),
+            ("split_super_cells", json!(plan.split_super_cells)),
             ("per_node", json!(nodes_json)),
         ],
     );

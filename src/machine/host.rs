@@ -81,6 +81,8 @@ pub struct MachineStats {
     /// pre-pass predicted it.
     pub imbalance: f64,
     pub predicted_imbalance: f64,
+    /// Super cells split for the balance (`Plan::split_super_cells`).
+    pub split_super_cells: usize,
     pub per_node: Vec<NodeReport>,
     /// Bytes one node would hold with the whole structure and scene.
     pub replicated_bytes: u64,
@@ -176,6 +178,10 @@ pub struct Plan {
     /// Bound of one path's bytes in a node.
     pub path_bytes: u64,
     pub prepass_seconds: f64,
+    /// Super cells the mapping found too heavy for one node, which the
+    /// build split (`mapping::hot`), and how many times it built again.
+    pub split_super_cells: usize,
+    pub rebuilds: usize,
 }
 
 impl Plan {
@@ -244,6 +250,8 @@ impl Plan {
             window,
             path_bytes,
             prepass_seconds,
+            split_super_cells: hot.iter().map(Vec::len).sum(),
+            rebuilds: round,
         }
     }
 
@@ -384,6 +392,7 @@ pub fn render_adaptive(
     stats.wall_seconds = start.elapsed().as_secs_f64();
     stats.build_seconds = plan.cells.stats.build_seconds;
     stats.prepass_seconds = plan.prepass_seconds;
+    stats.split_super_cells = plan.split_super_cells;
     stats.replicated_bytes = plan.replicated_bytes;
     stats.predicted_imbalance =
         mapping::predicted_imbalance(&plan.work, &plan.owner, topo.dimension);

@@ -139,6 +139,41 @@ fn the_full_pre_pass_predicts_every_nodes_work() {
     }
 }
 
+/// A super cell is never split over nodes, so the plan splits those its
+/// estimate finds too heavy for one (`house.ron` has one of 3 nodes' work
+/// on 32 nodes): the heaviest super cell then holds less of the work.
+#[test]
+fn heavy_super_cells_are_split_for_the_balance() {
+    use hypercast::cells::{CellStructure, SUPER_CELLS_PER_NODE};
+    use hypercast::machine::host::Plan;
+    let scene = load_scene(&repo("scenes/house.ron")).unwrap();
+    let (w, h, d) = (256, 192, 5);
+    let o = MachineOptions::new(w, h, 1);
+    let plan = Plan::new(&scene, &topo(d), &o);
+    assert!(plan.split_super_cells > 0 && plan.rebuilds > 0);
+    let plain = CellStructure::build(
+        &scene,
+        w,
+        h,
+        CellOptions {
+            min_super_cells: SUPER_CELLS_PER_NODE << d,
+            ..CellOptions::default()
+        },
+    );
+    let (work, _) = machine::mapping::map(&plain, &scene, w, h, machine::Mapping::Balanced, d);
+    let heaviest = |work: &[Vec<f64>; 2]| {
+        let total: f64 = work.iter().flatten().sum();
+        work.iter().flatten().cloned().fold(0.0, f64::max) / total
+    };
+    assert!(
+        heaviest(&plan.work) < 0.75 * heaviest(&work),
+        "heaviest {} of the work split, {} as built",
+        heaviest(&plan.work),
+        heaviest(&work)
+    );
+    assert!(plan.cells.stats.super_cells > plain.stats.super_cells);
+}
+
 #[test]
 fn random_scenes_on_random_dimensions_equal_one_node() {
     use hypercast::r#gen::random::{RandomCsgOptions, random_csg};
