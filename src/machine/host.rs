@@ -499,13 +499,7 @@ fn run_pass(
 
 /// The largest busy time against the mean.
 fn busy_imbalance(nodes: &[NodeReport]) -> f64 {
-    let busy: Vec<f64> = nodes.iter().map(|r| r.busy_seconds).collect();
-    let mean = busy.iter().sum::<f64>() / busy.len().max(1) as f64;
-    if mean > 0.0 {
-        busy.iter().cloned().fold(0.0, f64::max) / mean
-    } else {
-        1.0
-    }
+    super::max_over_mean(nodes.iter().map(|r| r.busy_seconds))
 }
 
 /// A node's thread: runs it, and turns an error or a panic into a

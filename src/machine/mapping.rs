@@ -522,13 +522,7 @@ fn adjacent(supers: &[crate::cells::SuperCell]) -> Vec<Vec<u32>> {
 
 /// The largest estimated load of a node against the mean (1 is perfect).
 pub fn predicted_imbalance(work: &[Vec<f64>; 2], owner: &[Vec<u16>; 2], d: u32) -> f64 {
-    let load = loads(work, owner, d);
-    let mean = load.iter().sum::<f64>() / load.len() as f64;
-    if mean > 0.0 {
-        load.iter().cloned().fold(0.0, f64::max) / mean
-    } else {
-        1.0
-    }
+    super::max_over_mean(loads(work, owner, d))
 }
 
 #[cfg(test)]

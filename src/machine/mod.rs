@@ -27,3 +27,19 @@ pub use host::{
 };
 pub use mapping::Mapping;
 pub use topology::{Topology, parse_size};
+
+/// The largest of `v` against their mean, the imbalance of per-node loads
+/// (busy time, estimated or counted work); 1 for none or all zero.
+pub fn max_over_mean(v: impl IntoIterator<Item = f64>) -> f64 {
+    let (mut n, mut sum, mut max) = (0usize, 0.0, 0.0f64);
+    for x in v {
+        n += 1;
+        sum += x;
+        max = max.max(x);
+    }
+    if n == 0 || sum <= 0.0 {
+        1.0
+    } else {
+        max / (sum / n as f64)
+    }
+}

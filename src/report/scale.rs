@@ -101,21 +101,6 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
-/// The largest of `v` against their mean (1 for none or all zero).
-fn max_over_mean(v: impl Iterator<Item = f64>) -> f64 {
-    let (mut n, mut sum, mut max) = (0usize, 0.0, 0.0f64);
-    for x in v {
-        n += 1;
-        sum += x;
-        max = max.max(x);
-    }
-    if n == 0 || sum <= 0.0 {
-        1.0
-    } else {
-        max / (sum / n as f64)
-    }
-}
-
 /// Runs the experiment. `progress(done, total)` counts renders.
 pub fn measure(
     scene: &Scene,
@@ -216,10 +201,10 @@ pub fn measure(
             bytes_per_ray: rep.message_bytes as f64 / rep.rays.total().max(1) as f64,
             structure_bytes,
             structure_ratio: structure_bytes as f64 / whole_structure.max(1) as f64,
-            imbalance_tests: max_over_mean(
+            imbalance_tests: machine::max_over_mean(
                 rep.per_node.iter().map(|n| n.intersection_tests as f64),
             ),
-            imbalance_work: max_over_mean(rep.per_node.iter().map(|n| {
+            imbalance_work: machine::max_over_mean(rep.per_node.iter().map(|n| {
                 (crate::cells::CELL_WORK * n.cells_visited
                     + crate::cells::TEST_WORK * n.intersection_tests) as f64
             })),
