@@ -58,6 +58,8 @@ pub fn map(
     mapping: Mapping,
     d: u32,
 ) -> ([Vec<f64>; 2], [Vec<u16>; 2]) {
+    // Which super cells touch, once for every mapping made here.
+    let beside = neighbours(cs);
     match mapping {
         Mapping::EqualArea => {
             let work = Region::BOTH.map(|r| {
@@ -76,29 +78,25 @@ pub fn map(
                     })
                     .collect()
             });
-            let owner = assign(cs, &work, d);
+            let owner = assign(cs, &beside, &work, d);
             (work, owner)
         }
         Mapping::Balanced => {
             let mut work = prepass(cs, scene, width, height, None, PREPASS_STRIDE);
-            let mut owner = assign(cs, &work, d);
+            let mut owner = assign(cs, &beside, &work, d);
             if d == 0 {
                 return (work, owner);
             }
+            // Every cell's hull, once for the walks below.
+            let skeleton = skeleton(cs, scene);
             // Walked again as the machine will, under the mapping so far:
             // the work a ray repeats after crossing to another node falls
             // on that node. The mapping then moves only a few super cells
             // (`refine`), so the walk stays close to what it measured.
             for _ in 0..REFINE_PASSES {
-                work = prepass(
-                    cs,
-                    scene,
-                    width,
-                    height,
-                    Some(owner.clone()),
-                    PREPASS_STRIDE,
-                );
-                refine(cs, &work, &mut owner, d);
+                let walk = Some((&owner, &skeleton));
+                work = prepass(cs, scene, width, height, walk, PREPASS_STRIDE);
+                refine(&beside, &work, &mut owner, d);
             }
             (work, owner)
         }
@@ -138,24 +136,16 @@ pub fn hot(cs: &CellStructure, work: &[Vec<f64>; 2], d: u32, pixel_area: f64) ->
     let mean = work.iter().flatten().sum::<f64>() / (1u64 << d) as f64;
     Region::BOTH.map(|r| {
         let supers = &cs.region(r).supers;
-        let (lo, hi) = finite_span(supers);
+        let span = finite_span(supers);
         supers
             .iter()
             .zip(&work[r as usize])
-            .filter(|&(_, &w)| {
-                r == Region::Front
-                    && d > 0
-                    && lo[0] <= hi[0]
-                    && lo[1] <= hi[1]
-                    && w > HOT_LOAD * mean
-            })
+            .filter(|&(_, &w)| r == Region::Front && d > 0 && w > HOT_LOAD * mean)
             .filter_map(|(s, &w)| {
-                let rect = Rect {
-                    x0: s.rect.x0.clamp(lo[0], hi[0]),
-                    x1: s.rect.x1.clamp(lo[0], hi[0]),
-                    y0: s.rect.y0.clamp(lo[1], hi[1]),
-                    y1: s.rect.y1.clamp(lo[1], hi[1]),
+                let [Some((x0, x1)), Some((y0, y1))] = clamped(&s.rect, span) else {
+                    return None;
                 };
+                let rect = Rect { x0, x1, y0, y1 };
                 let area = (rect.x1 - rect.x0) * (rect.y1 - rect.y0);
                 let max_area =
                     (area / (w / (HOT_PIECE * mean)).ceil()).max(HOT_MIN_PIXELS * pixel_area);
@@ -185,6 +175,14 @@ fn finite_span(supers: &[crate::cells::SuperCell]) -> ([f64; 2], [f64; 2]) {
     (lo, hi)
 }
 
+/// `r`'s extent along each axis clamped to `span` (`finite_span`); None
+/// along an axis without finite coordinates.
+fn clamped(r: &Rect, (lo, hi): ([f64; 2], [f64; 2])) -> [Option<(f64, f64)>; 2] {
+    [0, 1].map(|k| {
+        (lo[k] <= hi[k]).then(|| (r.lo(k).clamp(lo[k], hi[k]), r.hi(k).clamp(lo[k], hi[k])))
+    })
+}
+
 /// Traces every `PREPASS_STRIDE`-th pixel of every `PREPASS_STRIDE`-th row
 /// through the whole structure, all its ray kinds, recording the work per
 /// super cell; with `owner`, as the machine walks under that mapping
@@ -202,11 +200,10 @@ fn prepass(
     scene: &Scene,
     width: u32,
     height: u32,
-    owner: Option<[Vec<u16>; 2]>,
+    walk: Option<(&[Vec<u16>; 2], &CellStructure)>,
     stride: u32,
 ) -> [Vec<f64>; 2] {
     let cam = CameraFrame::new(scene, width, height);
-    let skeleton = owner.is_some().then(|| cs.restrict(scene, &|_, _| false).0);
     // On the host's cores, before any node starts, rows shared out in
     // turn. Each pixel's work is counted by its own rays alone (mailboxes
     // are keyed by ray), so the sums are the same for any thread count.
@@ -218,13 +215,13 @@ fn prepass(
     let parts: Vec<[Vec<u64>; 2]> = std::thread::scope(|scope| {
         let handles: Vec<_> = (0..threads.min(rows.len()).max(1))
             .map(|t| {
-                let (rows, owner, skeleton, cam) = (&rows, owner.clone(), &skeleton, &cam);
+                let (rows, cam) = (&rows, &cam);
                 scope.spawn(move || {
                     let shader = Shader::new(scene);
                     let mut tracer = CellTracer::new(cs, scene);
-                    match (owner, skeleton) {
-                        (Some(o), Some(sk)) => tracer.record_work_for(o, sk),
-                        _ => tracer.record_work(),
+                    match walk {
+                        Some((owner, skeleton)) => tracer.record_work_for(owner.clone(), skeleton),
+                        None => tracer.record_work(),
                     }
                     let mut film = Film::new(width, height);
                     let (mut counts, mut stack, mut jobs) =
@@ -273,8 +270,23 @@ pub fn predicted_loads(
     d: u32,
     stride: u32,
 ) -> Vec<f64> {
-    let work = prepass(cs, scene, width, height, Some(owner.clone()), stride.max(1));
+    let skeleton = skeleton(cs, scene);
+    let work = prepass(
+        cs,
+        scene,
+        width,
+        height,
+        Some((owner, &skeleton)),
+        stride.max(1),
+    );
     loads(&work, owner, d)
+}
+
+/// The structure as a node that owns nothing holds it: every cell with
+/// content remote, with its hull, which the pre-pass walks by
+/// (`CellTracer::record_work_for`).
+fn skeleton(cs: &CellStructure, scene: &Scene) -> CellStructure {
+    cs.restrict(scene, &|_, _| false).0
 }
 
 /// The sum of the work of each node's super cells.
@@ -313,10 +325,11 @@ struct Item {
 }
 
 /// The owner of every super cell of each region, for `2^d` nodes: a
-/// Gray-coded grid (`grid`), then refined (`refine`).
-pub fn assign(cs: &CellStructure, work: &[Vec<f64>; 2], d: u32) -> [Vec<u16>; 2] {
+/// Gray-coded grid (`grid`), then refined (`refine`) over the super
+/// cells' `neighbours`.
+fn assign(cs: &CellStructure, beside: &Beside, work: &[Vec<f64>; 2], d: u32) -> [Vec<u16>; 2] {
     let mut owner = grid(cs, work, d);
-    refine(cs, work, &mut owner, d);
+    refine(beside, work, &mut owner, d);
     owner
 }
 
@@ -382,23 +395,19 @@ fn items(cs: &CellStructure, weight: &[Vec<f64>; 2], r: Region) -> Vec<Item> {
     let rc = cs.region(r);
     // Unbounded rectangles (the partition is of the whole plane) are
     // clamped to the span of the finite coordinates.
-    let (lo, hi) = finite_span(&rc.supers);
-    let mid = |a: f64, b: f64, k: usize| {
-        if lo[k] <= hi[k] {
-            (a.clamp(lo[k], hi[k]) + b.clamp(lo[k], hi[k])) / 2.0
-        } else {
-            0.0
-        }
-    };
+    let span = finite_span(&rc.supers);
     rc.supers
         .iter()
         .enumerate()
-        .map(|(i, s)| Item {
-            region: r as usize,
-            s: i as u32,
-            x: mid(s.rect.x0, s.rect.x1, 0),
-            y: mid(s.rect.y0, s.rect.y1, 1),
-            w: weight[r as usize][i],
+        .map(|(i, s)| {
+            let [x, y] = clamped(&s.rect, span).map(|e| e.map_or(0.0, |(a, b)| (a + b) / 2.0));
+            Item {
+                region: r as usize,
+                s: i as u32,
+                x,
+                y,
+                w: weight[r as usize][i],
+            }
         })
         .collect()
 }
@@ -425,10 +434,9 @@ fn cut(mut items: Vec<Item>, key: fn(&Item) -> f64, parts: usize) -> Vec<Vec<Ite
 /// largest load. The grid's cuts balance columns and rows, but a super
 /// cell is never split, and a few heavy ones (the sphereflake's big
 /// sphere) leave some nodes well above the mean.
-fn refine(cs: &CellStructure, work: &[Vec<f64>; 2], owner: &mut [Vec<u16>; 2], d: u32) {
+fn refine(beside: &Beside, work: &[Vec<f64>; 2], owner: &mut [Vec<u16>; 2], d: u32) {
     let weight = weights(work);
     let mut load = loads(&weight, owner, d);
-    let beside = Region::BOTH.map(|r| adjacent(&cs.region(r).supers));
     // Each move scans every super cell: a bound keeps huge structures
     // cheap (a few moves per node is what balancing takes).
     for _ in 0..8 * load.len() {
@@ -459,6 +467,13 @@ fn refine(cs: &CellStructure, work: &[Vec<f64>; 2], owner: &mut [Vec<u16>; 2], d
         load[to as usize] += weight[r][s];
         owner[r][s] = to;
     }
+}
+
+/// Per region, each super cell's `adjacent` ones.
+type Beside = [Vec<Vec<u32>>; 2];
+
+fn neighbours(cs: &CellStructure) -> Beside {
+    Region::BOTH.map(|r| adjacent(&cs.region(r).supers))
 }
 
 /// For each super cell, the super cells that share a piece of an edge
@@ -612,9 +627,9 @@ mod tests {
                 .map(|s| 1.0 + (s * 7 % 11) as f64)
                 .collect::<Vec<f64>>()
         });
-        let first = assign(&cs, &work, 4);
+        let first = assign(&cs, &neighbours(&cs), &work, 4);
         for _ in 0..4 {
-            assert_eq!(assign(&cs, &work, 4), first);
+            assert_eq!(assign(&cs, &neighbours(&cs), &work, 4), first);
         }
     }
 
@@ -637,7 +652,7 @@ mod tests {
         let mut owner = grid(&cs, &work, d);
         let weight = weights(&work);
         let before = loads(&weight, &owner, d);
-        refine(&cs, &work, &mut owner, d);
+        refine(&neighbours(&cs), &work, &mut owner, d);
         let after = loads(&weight, &owner, d);
         let max = |v: &[f64]| v.iter().cloned().fold(0.0, f64::max);
         assert!(max(&after) <= max(&before), "{before:?} -> {after:?}");
