@@ -323,7 +323,7 @@ impl RegionCells {
     /// pointer at the face's low end and climb the neighbours' pointers
     /// until one contains the exit point, then find the depth slab.
     #[allow(clippy::too_many_arguments)]
-    #[inline]
+    #[inline(always)]
     fn side_neighbour(
         &self,
         rr: &RegionRay,
@@ -596,7 +596,10 @@ pub struct CellTracer<'a> {
     /// Per region, the super cell where the last walk there started or
     /// found its hit: where the next ray most likely starts (the next
     /// pixel's, or the shadow rays from the hit).
-    hint: [u32; 2],
+    /// A third for rays from the eye, the primary rays: the next pixel's
+    /// is most likely where this pixel's started, not where its last
+    /// secondary ray went.
+    hint: [u32; 3],
     pub counters: TraceCounters,
     pub eval_counts: EvalCounts,
     /// Work per super cell, when recording (`record_work`).
@@ -620,7 +623,7 @@ impl<'a> CellTracer<'a> {
             ray_id: 0,
             last_ray: None,
             slab: SlabRay::new(&Ray::new(Vec3::ZERO, Vec3::Z)),
-            hint: [u32::MAX; 2],
+            hint: [u32::MAX; 3],
             counters: TraceCounters::default(),
             eval_counts: EvalCounts::default(),
             profile: None,
@@ -640,10 +643,9 @@ impl<'a> CellTracer<'a> {
     /// of a cell's subtree are then empty, and the evaluation short-cuts
     /// (empty operands of unions are dropped, an empty first operand of a
     /// difference or any empty operand of an intersection empties it).
-    #[inline]
+    #[inline(always)]
     fn in_cell(&mut self, subtree: u32, ray: &Ray, t_lo: f64, t_end: f64) -> Option<Hit> {
         let cs = self.cs;
-        let tree = &cs.subtrees;
         let id = self.ray_id;
         let prims = &self.scene.primitives;
         let slab = &self.slab;
@@ -663,19 +665,22 @@ impl<'a> CellTracer<'a> {
         let [a, b] = cs.leaf_span[subtree as usize];
         let mut lone: Option<&SubtreeLeaf> = None;
         let mut several = false;
+        // Counted in locals and added once: the intersection call in the
+        // loop would otherwise make every count a load and a store.
+        let (mut looked, mut met, mut tests, mut culled) = (0u64, 0u64, 0u64, 0u64);
         for l in &cs.subtree_leaves[a as usize..b as usize] {
             let p = l.prim as usize;
             let mb = &mut mailboxes[p];
-            self.eval_counts.nodes_visited += 1;
+            looked += 1;
             if mb.ray == id {
-                counters.mailbox_hits += 1;
+                met += 1;
             } else if slab.meets(&l.cull) {
-                counters.intersection_tests += 1;
+                tests += 1;
                 let hits = prims[p].intersect(ray);
                 *mb = Mailbox::of(id, &hits);
                 all_hits[p] = hits;
             } else {
-                self.eval_counts.nodes_culled += 1;
+                culled += 1;
                 *mb = Mailbox::missed(id);
             }
             if mb.hi >= t_lo && mb.lo <= t_end {
@@ -686,11 +691,31 @@ impl<'a> CellTracer<'a> {
                 lone = Some(l);
             }
         }
+        self.eval_counts.nodes_visited += looked;
+        self.eval_counts.nodes_culled += culled;
+        counters.mailbox_hits += met;
+        counters.intersection_tests += tests;
         if !several {
             let l = lone.filter(|l| l.lone_is_result)?;
             let p = l.prim as usize;
             return first_crossing(&all_hits[p], PrimId(l.prim), t_lo, t_end);
         }
+        self.evaluate_cell(subtree, ray, t_lo, t_end)
+    }
+
+    /// `in_cell`'s evaluation of a subtree with two or more leaves in the
+    /// window. Out of line, so that the walk's loop around the first look
+    /// keeps its values in registers.
+    #[inline(never)]
+    fn evaluate_cell(&mut self, subtree: u32, ray: &Ray, t_lo: f64, t_end: f64) -> Option<Hit> {
+        let cs = self.cs;
+        let tree = &cs.subtrees;
+        let id = self.ray_id;
+        let prims = &self.scene.primitives;
+        let slab = &self.slab;
+        let counters = &mut self.counters;
+        let mailboxes = &mut self.mailboxes;
+        let all_hits = &mut self.hits;
         // A leaf's crossings in the window, through its mailbox; the
         // culling test against its minimal box only when the mailbox is
         // empty.
@@ -811,8 +836,17 @@ fn clamp(q: f64, lo: f64, hi: f64) -> f64 {
 }
 
 /// The largest float below `t`, so that `(prev_float(t), x)` includes `t`.
+#[inline(always)]
 fn prev_float(t: f64) -> f64 {
-    if t.is_finite() { t.next_down() } else { t }
+    // The common case, a positive normal or subnormal `t`, is one less in
+    // its bits; `next_down` handles the rest (zero, negatives).
+    if t > 0.0 && t < f64::INFINITY {
+        f64::from_bits(t.to_bits() - 1)
+    } else if t.is_finite() {
+        t.next_down()
+    } else {
+        t
+    }
 }
 
 impl CellStructure {
@@ -936,6 +970,7 @@ impl CellTracer<'_> {
         let mut from = from;
         // Recording for a mapping: the node the ray is on.
         let mut on = None;
+        let recording = self.profile.is_some();
         let first = from.map_or(0, |p| usize::from(order[0] != p.region));
         for &region in &order[first..] {
             let (lo, hi) = cam.region_interval(region);
@@ -946,14 +981,19 @@ impl CellTracer<'_> {
             }
             let rc = self.cs.region(region);
             let rr = RegionRay::new(region, cam);
+            let slot = if region == Region::Front && ray.origin == self.cs.view.eye {
+                2
+            } else {
+                region as usize
+            };
             let (mut s, mut k, mut t_in) = match from.take_if(|p| p.region == region) {
                 Some(p) => (p.super_cell, p.cell, p.t_in),
                 None => {
-                    let (s, k) = rc.locate(&rr, lo, self.hint[region as usize]);
+                    let (s, k) = rc.locate(&rr, lo, self.hint[slot]);
                     (s, k, lo)
                 }
             };
-            self.hint[region as usize] = s;
+            self.hint[slot] = s;
             // The walk is monotone in every screen axis and depth, so it
             // ends; the guard only turns a bug into a miss, never a hang.
             let mut guard = rc.cell_count() + 2;
@@ -969,7 +1009,7 @@ impl CellTracer<'_> {
                 // A cell held elsewhere is walked through here when the
                 // ray's part in it misses the hull of its content: the
                 // owner would find nothing, and the ray saves a message.
-                if self.meets_remote(rc, k, ray, t_in, t_end) {
+                if is_remote(subtree) && self.meets_remote(rc, k, ray, t_in, t_end) {
                     return Walk::Remote(WalkPoint {
                         region,
                         super_cell: s,
@@ -977,32 +1017,17 @@ impl CellTracer<'_> {
                         t_in,
                     });
                 }
-                // Recording for a mapping, a cell the machine's walker
-                // passes through is booked where the ray is.
-                let through = self.machine_step(&mut on, region, s, k, ray, t_in, t_end);
                 self.counters.cells_visited += 1;
-                let (tests, met) = (self.counters.intersection_tests, self.counters.mailbox_hits);
-                let hit = if subtree < REMOTE && t_end >= t_in && through.is_none() {
-                    self.in_cell(subtree, ray, t_min.max(prev_float(t_in)), t_end)
+                let t_lo = || t_min.max(prev_float(t_in));
+                let hit = if recording {
+                    self.recorded_step(&mut on, region, s, k, ray, t_in, (t_lo(), t_end))
+                } else if subtree < REMOTE && t_end >= t_in {
+                    self.in_cell(subtree, ray, t_lo(), t_end)
                 } else {
                     None
                 };
-                if let Some(p) = &mut self.profile {
-                    let tests = self.counters.intersection_tests - tests;
-                    // Walking as the machine does, a mailbox hit is a hit
-                    // there too, nearly free. Without the owners, it
-                    // stands for the test that the machine mostly repeats
-                    // on the node a ray crosses to.
-                    let met = if self.owners.is_some() {
-                        0
-                    } else {
-                        self.counters.mailbox_hits - met
-                    };
-                    let (r, b) = through.unwrap_or((region, s));
-                    p[r as usize][b as usize] += CELL_WORK + TEST_WORK * (tests + met);
-                }
                 if let Some(h) = hit {
-                    self.hint[region as usize] = s;
+                    self.hint[slot] = s;
                     return Walk::Hit(h);
                 }
                 // Past the end of the ray's part in the region (or NaN).
@@ -1086,6 +1111,47 @@ impl CellTracer<'_> {
             _ => *on = Some(here),
         }
         None
+    }
+}
+
+impl CellTracer<'_> {
+    /// The walk's step in cell `k` of super cell `s` when recording work
+    /// (`record_work`): the cell's search, as a plain walk does it, unless
+    /// the machine's walker would pass through it (`machine_step`), and
+    /// the work booked to the super cell where the machine does it.
+    #[allow(clippy::too_many_arguments)]
+    fn recorded_step(
+        &mut self,
+        on: &mut Option<OnNode>,
+        region: Region,
+        s: u32,
+        k: u32,
+        ray: &Ray,
+        t_in: f64,
+        (t_lo, t_end): (f64, f64),
+    ) -> Option<Hit> {
+        let subtree = self.cs.region(region).subtree[k as usize];
+        let through = self.machine_step(on, region, s, k, ray, t_in, t_end);
+        let (tests, met) = (self.counters.intersection_tests, self.counters.mailbox_hits);
+        let hit = if subtree < REMOTE && t_end >= t_in && through.is_none() {
+            self.in_cell(subtree, ray, t_lo, t_end)
+        } else {
+            None
+        };
+        let tests = self.counters.intersection_tests - tests;
+        // Walking as the machine does, a mailbox hit is a hit there too,
+        // nearly free. Without the owners, it stands for the test that
+        // the machine mostly repeats on the node a ray crosses to.
+        let met = if self.owners.is_some() {
+            0
+        } else {
+            self.counters.mailbox_hits - met
+        };
+        let (r, b) = through.unwrap_or((region, s));
+        if let Some(p) = &mut self.profile {
+            p[r as usize][b as usize] += CELL_WORK + TEST_WORK * (tests + met);
+        }
+        hit
     }
 }
 
