@@ -67,10 +67,80 @@ pub fn to_display(linear: &[[f32; 3]]) -> Vec<[f32; 3]> {
 
 /// 8-bit sRGB bytes of linear pixels.
 pub fn to_srgb8(linear: &[[f32; 3]]) -> Vec<u8> {
+    let table = Srgb8::get();
     linear
         .iter()
-        .flat_map(|p| p.map(|c| (srgb_encode(c) * 255.0).round() as u8))
+        .flat_map(|p| p.map(|c| table.byte(c)))
         .collect()
+}
+
+/// The 8-bit sRGB byte of a linear value, computed directly: what
+/// `Srgb8::byte` gives without the transfer function's `powf`.
+fn srgb8_direct(c: f32) -> u8 {
+    (srgb_encode(c) * 255.0).round() as u8
+}
+
+/// `srgb8_direct` by table, for the millions of values of an image (a
+/// `powf` each took most of the time of writing a PNG): the byte at the
+/// start of the value's bucket of bit patterns (its exponent and top
+/// mantissa bits), raised past each byte's threshold (the least value
+/// with that byte) the value reaches. Both tables come from
+/// `srgb8_direct`, which never decreases as the value grows, so the bytes
+/// are the same.
+struct Srgb8 {
+    /// Per bucket (`bits >> BUCKET_SHIFT` of a value in [0, 1]), the byte
+    /// of its first value.
+    base: Vec<u8>,
+    /// `threshold[k]`: the least value in [0, 1] whose byte is at least k
+    /// (`threshold[0]` is 0).
+    threshold: [f32; 256],
+}
+
+const BUCKET_SHIFT: u32 = 16;
+
+impl Srgb8 {
+    fn get() -> &'static Srgb8 {
+        static TABLE: std::sync::OnceLock<Srgb8> = std::sync::OnceLock::new();
+        TABLE.get_or_init(|| {
+            let one = 1.0f32.to_bits();
+            let base = (0..=one >> BUCKET_SHIFT)
+                .map(|b| srgb8_direct(f32::from_bits(b << BUCKET_SHIFT)))
+                .collect();
+            let mut threshold = [0.0; 256];
+            for (k, t) in threshold.iter_mut().enumerate().skip(1) {
+                // The least bit pattern in [0, 1] whose byte reaches k
+                // (non-negative floats order as their bits).
+                let (mut lo, mut hi) = (0u32, one);
+                while lo < hi {
+                    let mid = lo + (hi - lo) / 2;
+                    if usize::from(srgb8_direct(f32::from_bits(mid))) >= k {
+                        hi = mid;
+                    } else {
+                        lo = mid + 1;
+                    }
+                }
+                *t = f32::from_bits(lo);
+            }
+            Srgb8 { base, threshold }
+        })
+    }
+
+    #[inline]
+    fn byte(&self, c: f32) -> u8 {
+        // NaN, negatives and zero are 0 and values past 1 are 255, as
+        // `srgb_encode` clamps them.
+        if c.is_nan() || c <= 0.0 {
+            return 0;
+        }
+        if c >= 1.0 {
+            return 255;
+        }
+        let mut b = self.base[(c.to_bits() >> BUCKET_SHIFT) as usize];
+        while b < 255 && c >= self.threshold[b as usize + 1] {
+            b += 1;
+        }
+        b
+    }
 }
 
 /// Writes linear pixels to `path` atomically in the format of its extension.
@@ -236,6 +306,31 @@ pub fn from_display(display: &[[f32; 3]]) -> Vec<[f32; 3]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn srgb_bytes_by_table_are_the_direct_ones() {
+        let table = Srgb8::get();
+        let one = 1.0f32.to_bits();
+        // Every 61st bit pattern of [0, 1] (about 17 million values), each
+        // threshold and its neighbours, and the clamped and odd values.
+        let mut values: Vec<f32> = (0..=one).step_by(61).map(f32::from_bits).collect();
+        for t in table.threshold {
+            let b = t.to_bits();
+            values.extend((b.saturating_sub(2)..=b + 2).map(f32::from_bits));
+        }
+        values.extend([
+            -1.0,
+            -0.0,
+            1.0,
+            1.5,
+            f32::INFINITY,
+            f32::NAN,
+            f32::MIN_POSITIVE,
+        ]);
+        for c in values {
+            assert_eq!(table.byte(c), srgb8_direct(c), "byte of {c:e}");
+        }
+    }
 
     #[test]
     fn srgb_round_trips() {
