@@ -659,6 +659,7 @@ pub fn machine_json(topo: &Topology, ms: &MachineStats) -> Vec<(&'static str, se
         ("predicted_imbalance", num(ms.predicted_imbalance)),
         ("prepass_seconds", num(ms.prepass_seconds)),
         ("split_super_cells", json!(ms.split_super_cells)),
+        ("subdivision", json!(ms.subdivision.name())),
         (
             "peak_memory_bytes",
             json!(ms.per_node.iter().map(|n| n.peak_memory_bytes).max()),
@@ -764,6 +765,9 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
             plan.split_super_cells, plan.rebuilds
         );
     }
+    if plan.subdivision != machine::host::Subdivision::Balanced {
+        println!("subdivision         {}", plan.subdivision.describe());
+    }
     println!("node  super_cells  cells  primitives  memory_MiB  structure_MiB  estimated_work");
     let mut nodes_json = Vec::new();
     for (i, (share, local)) in plan.shares.iter().enumerate() {
@@ -810,6 +814,7 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
             ("replicated_scene_bytes", json!(plan.replicated_bytes)),
             ("window", json!(plan.window)),
             ("split_super_cells", json!(plan.split_super_cells)),
+            ("subdivision", json!(plan.subdivision.name())),
             ("per_node", json!(nodes_json)),
         ],
     );

@@ -83,6 +83,8 @@ pub struct MachineStats {
     pub predicted_imbalance: f64,
     /// Super cells split for the balance (`Plan::split_super_cells`).
     pub split_super_cells: usize,
+    /// What the subdivision has for the balance (`Plan::subdivision`).
+    pub subdivision: Subdivision,
     pub per_node: Vec<NodeReport>,
     /// Bytes one node would hold with the whole structure and scene.
     pub replicated_bytes: u64,
@@ -182,15 +184,92 @@ pub struct Plan {
     /// build split (`mapping::hot`), and how many times it built again.
     pub split_super_cells: usize,
     pub rebuilds: usize,
+    /// What the machine added to the subdivision for its balance.
+    pub subdivision: Subdivision,
+}
+
+/// How much the machine adds to the paper's subdivision for its balance
+/// (`Plan::new`): more super cells than the cost model makes, so that the
+/// mapping has pieces to balance with (`SUPER_CELLS_PER_NODE`), and heavy
+/// super cells split (`mapping::hot`). Both copy subtrees into more cells:
+/// where that makes a share too large for its node, the plan is made
+/// again with less of it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Subdivision {
+    /// Both, the default.
+    #[default]
+    Balanced,
+    /// The super cells per node, no splits.
+    Unsplit,
+    /// The cost model's own super cells, as on one node.
+    Paper,
+}
+
+impl Subdivision {
+    /// Its name in the statistics.
+    pub fn name(self) -> &'static str {
+        match self {
+            Subdivision::Balanced => "balanced",
+            Subdivision::Unsplit => "unsplit",
+            Subdivision::Paper => "paper",
+        }
+    }
+
+    /// What it means, for `inspect`.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Subdivision::Balanced => "balanced: super cells added and split for the mapping",
+            Subdivision::Unsplit => {
+                "unsplit: with heavy super cells split for balance, a share would not fit its node"
+            }
+            Subdivision::Paper => {
+                "the cost model's: with super cells added for balance, a share would not fit its node"
+            }
+        }
+    }
 }
 
 impl Plan {
-    /// Builds the structure, maps it on `2^d` nodes and sizes the shares.
+    /// Builds the structure, maps it on `2^d` nodes and sizes the shares:
+    /// with the subdivision for balance where every share fits its node,
+    /// else the leanest plan that fits (`Subdivision`), else, to be
+    /// refused by `check`, the plan whose largest share is smallest, so
+    /// that the memory the refusal names is the least that would do.
+    /// The leaner plans are made only when the first does not fit.
     pub fn new(scene: &Scene, topo: &Topology, opts: &MachineOptions) -> Plan {
+        let first = Plan::with_subdivision(scene, topo, opts, Subdivision::Balanced);
+        if first.window > 0 || topo.dimension == 0 {
+            return first;
+        }
+        let mut best = first;
+        for sub in [Subdivision::Unsplit, Subdivision::Paper] {
+            let plan = Plan::with_subdivision(scene, topo, opts, sub);
+            if plan.window > 0 {
+                return plan;
+            }
+            if plan.largest_share() < best.largest_share() {
+                best = plan;
+            }
+        }
+        best
+    }
+
+    /// The bytes of the largest share.
+    pub fn largest_share(&self) -> u64 {
+        self.share_bytes.iter().copied().max().unwrap_or(0)
+    }
+
+    /// `new` with subdivision `sub`, whether its shares fit or not.
+    pub fn with_subdivision(
+        scene: &Scene,
+        topo: &Topology,
+        opts: &MachineOptions,
+        sub: Subdivision,
+    ) -> Plan {
         let d = topo.dimension;
         let n = 1usize << d;
         let cell_opts = CellOptions {
-            min_super_cells: if n > 1 {
+            min_super_cells: if n > 1 && sub != Subdivision::Paper {
                 crate::cells::SUPER_CELLS_PER_NODE * n
             } else {
                 0
@@ -211,7 +290,10 @@ impl Plan {
         let mut round = 0;
         let (work, owner) = loop {
             let (work, owner) = mapping::map(&cells, scene, w, h, opts.mapping, d);
-            if opts.mapping != Mapping::Balanced || round == HOT_ROUNDS {
+            if opts.mapping != Mapping::Balanced
+                || sub != Subdivision::Balanced
+                || round == HOT_ROUNDS
+            {
                 break (work, owner);
             }
             let more = mapping::hot(&cells, &work, d, pixel_area);
@@ -252,6 +334,7 @@ impl Plan {
             prepass_seconds,
             split_super_cells: hot.iter().map(Vec::len).sum(),
             rebuilds: round,
+            subdivision: sub,
         }
     }
 
@@ -393,6 +476,7 @@ pub fn render_adaptive(
     stats.build_seconds = plan.cells.stats.build_seconds;
     stats.prepass_seconds = plan.prepass_seconds;
     stats.split_super_cells = plan.split_super_cells;
+    stats.subdivision = plan.subdivision;
     stats.replicated_bytes = plan.replicated_bytes;
     stats.predicted_imbalance =
         mapping::predicted_imbalance(&plan.work, &plan.owner, topo.dimension);

@@ -174,6 +174,42 @@ fn heavy_super_cells_are_split_for_the_balance() {
     assert!(plan.cells.stats.super_cells > plain.stats.super_cells);
 }
 
+/// Super cells added and split for the balance copy subtrees into more
+/// cells. Where that makes a share too large for its node, the plan falls
+/// back to a leaner subdivision that fits rather than refusing the scene
+/// (the 10,000-sphere rod of the stress cases fitted the iPSC-D5 before
+/// the machine asked for more super cells, and was then refused).
+#[test]
+fn a_plan_too_large_for_balance_falls_back_to_a_leaner_one() {
+    use hypercast::machine::host::{Plan, Subdivision};
+    let scene = load_scene(&repo("scenes/house.ron")).unwrap();
+    let (w, h, d) = (256, 192, 5);
+    let o = MachineOptions::new(w, h, 1);
+    let roomy = Topology::ipsc_d5()
+        .with_overrides(Some(d), Some(1 << 30))
+        .unwrap();
+    let need = |sub| {
+        let p = Plan::with_subdivision(&scene, &roomy, &o, sub);
+        p.largest_share() + ((1u64 << d) + 1) * p.path_bytes
+    };
+    let (balanced, unsplit) = (need(Subdivision::Balanced), need(Subdivision::Unsplit));
+    assert!(
+        unsplit < balanced,
+        "the splits should cost memory: {unsplit} unsplit, {balanced} balanced"
+    );
+    let tight = Topology::ipsc_d5()
+        .with_overrides(Some(d), Some((unsplit + balanced) / 2))
+        .unwrap();
+    let plan = Plan::new(&scene, &tight, &o);
+    assert_ne!(plan.subdivision, Subdivision::Balanced);
+    assert!(plan.window > 0);
+    let (film, stats, _) = machine::render(&scene, &tight, &o, &|_| {}).expect("fits, leaner");
+    assert_ne!(stats.subdivision, Subdivision::Balanced);
+    check_stats(&scene, &stats);
+    let (alone, _) = machine(&scene, 0, w, h, 16);
+    assert_eq!(differing(&film, &alone), 0);
+}
+
 #[test]
 fn random_scenes_on_random_dimensions_equal_one_node() {
     use hypercast::r#gen::random::{RandomCsgOptions, random_csg};
