@@ -608,6 +608,9 @@ pub struct CellTracer<'a> {
     /// owner, and the structure as a node that owns nothing holds it (every
     /// cell with content remote, with its hull).
     owners: Option<(Box<[Vec<u16>; 2]>, &'a CellStructure)>,
+    /// When recording for a mapping, the times a ray moved to another
+    /// node: the machine's messages of paths between nodes.
+    moves: u64,
 }
 
 impl<'a> CellTracer<'a> {
@@ -628,6 +631,7 @@ impl<'a> CellTracer<'a> {
             eval_counts: EvalCounts::default(),
             profile: None,
             owners: None,
+            moves: 0,
         }
     }
 
@@ -905,6 +909,11 @@ impl<'a> CellTracer<'a> {
         self.owners = Some((Box::new(owner), skeleton));
     }
 
+    /// The moves of rays between nodes recorded since `record_work_for`.
+    pub fn recorded_moves(&self) -> u64 {
+        self.moves
+    }
+
     /// The work recorded since `record_work`.
     pub fn recorded_work(&self) -> Option<&[Vec<u64>; 2]> {
         self.profile.as_deref()
@@ -1106,6 +1115,7 @@ impl CellTracer<'_> {
                     return Some((o.region, o.super_cell));
                 }
                 self.ray_id += 1;
+                self.moves += 1;
                 *on = Some(here);
             }
             _ => *on = Some(here),

@@ -164,6 +164,22 @@ fn mib(b: u64) -> String {
 /// sphereflake) are built once.
 const HOT_ROUNDS: usize = 2;
 
+/// The most crossings between nodes a split structure may have, against
+/// the structure as built, by the pre-pass walked under each mapping
+/// (`mapping::map_counting`). A split halves regions whatever their
+/// content; where the rays of a scene go everywhere (the stress cases'
+/// hall of mirrors with a glass ball: its 14 super cells split into 129
+/// on 32 nodes) every reflection then crosses between nodes, and with
+/// its few paths in flight per node the machine waits on them: 36
+/// million hops for 3.6 million rays instead of 16, and 42,000 virtual
+/// seconds instead of 33,000 (at 160x120); the pre-pass predicted 3.3
+/// times the crossings. Where the splits pay they add far fewer (on 32
+/// nodes, after each of the two rounds): `csg_basics.ron` 1.28 and 1.45
+/// (split from 50 super cells into 241: 115,000 hops instead of 99,000,
+/// 199 virtual seconds instead of 616), `house.ron` 1.26 and 1.30,
+/// `glass.ron` 1.45, `jagged_ball.ron` 0.92 and 1.02.
+const HOT_CROSSINGS: f64 = 2.0;
+
 /// What the host decides before any node starts: the structure, the
 /// mapping, every node's share and its size, the flow-control window.
 pub struct Plan {
@@ -288,24 +304,37 @@ impl Plan {
         let cam = crate::trace::CameraFrame::new(scene, w, h);
         let pixel_area = (2.0 * cam.half_w / f64::from(w)) * (2.0 * cam.half_h / f64::from(h));
         let mut round = 0;
-        let (work, owner) = loop {
-            let (work, owner) = mapping::map(&cells, scene, w, h, opts.mapping, d);
-            if opts.mapping != Mapping::Balanced
-                || sub != Subdivision::Balanced
-                || round == HOT_ROUNDS
-            {
-                break (work, owner);
-            }
+        let (mut work, mut owner, as_built) =
+            mapping::map_counting(&cells, scene, w, h, opts.mapping, d);
+        while opts.mapping == Mapping::Balanced
+            && sub == Subdivision::Balanced
+            && round < HOT_ROUNDS
+        {
             let more = mapping::hot(&cells, &work, d, pixel_area);
             if more.iter().all(Vec::is_empty) {
-                break (work, owner);
+                break;
             }
-            for (all, m) in hot.iter_mut().zip(more) {
+            let mut next_hot = hot.clone();
+            for (all, m) in next_hot.iter_mut().zip(more) {
                 all.extend(m);
             }
-            cells = CellStructure::build_with_hot(scene, w, h, cell_opts, &[&hot[0], &hot[1]]);
+            let next = CellStructure::build_with_hot(
+                scene,
+                w,
+                h,
+                cell_opts,
+                &[&next_hot[0], &next_hot[1]],
+            );
+            let (next_work, next_owner, moves) =
+                mapping::map_counting(&next, scene, w, h, opts.mapping, d);
+            // Splits trade messages for balance; past this, they cost more
+            // than they even out (`HOT_CROSSINGS`).
+            if moves as f64 > HOT_CROSSINGS * as_built as f64 {
+                break;
+            }
+            (cells, hot, work, owner) = (next, next_hot, next_work, next_owner);
             round += 1;
-        };
+        }
         let prepass_seconds = t_pre.elapsed().as_secs_f64();
         let shares: Vec<(CellStructure, Scene)> = (0..n as u16)
             .map(|i| cells.restrict(scene, &|r, s| owner[r as usize][s as usize] == i))

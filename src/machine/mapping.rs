@@ -58,6 +58,21 @@ pub fn map(
     mapping: Mapping,
     d: u32,
 ) -> ([Vec<f64>; 2], [Vec<u16>; 2]) {
+    let (work, owner, _) = map_counting(cs, scene, width, height, mapping, d);
+    (work, owner)
+}
+
+/// `map`, and how many times the rays of its last pre-pass walked under
+/// the mapping moved between nodes (0 where none was walked so: one node,
+/// or `EqualArea`): the estimate of the paths the machine will send.
+pub fn map_counting(
+    cs: &CellStructure,
+    scene: &Scene,
+    width: u32,
+    height: u32,
+    mapping: Mapping,
+    d: u32,
+) -> ([Vec<f64>; 2], [Vec<u16>; 2], u64) {
     // Which super cells touch, once for every mapping made here.
     let beside = neighbours(cs);
     match mapping {
@@ -79,13 +94,13 @@ pub fn map(
                     .collect()
             });
             let owner = assign(cs, &beside, &work, d);
-            (work, owner)
+            (work, owner, 0)
         }
         Mapping::Balanced => {
             let mut work = prepass(cs, scene, width, height, None, PREPASS_STRIDE);
             let mut owner = assign(cs, &beside, &work, d);
             if d == 0 {
-                return (work, owner);
+                return (work, owner, 0);
             }
             // Every cell's hull, once for the walks below.
             let skeleton = skeleton(cs, scene);
@@ -93,12 +108,13 @@ pub fn map(
             // the work a ray repeats after crossing to another node falls
             // on that node. The mapping then moves only a few super cells
             // (`refine`), so the walk stays close to what it measured.
+            let mut moves = 0;
             for _ in 0..REFINE_PASSES {
                 let walk = Some((&owner, &skeleton));
-                work = prepass(cs, scene, width, height, walk, PREPASS_STRIDE);
+                (work, moves) = prepass_counting(cs, scene, width, height, walk, PREPASS_STRIDE);
                 refine(&beside, &work, &mut owner, d);
             }
-            (work, owner)
+            (work, owner, moves)
         }
     }
 }
@@ -203,6 +219,19 @@ fn prepass(
     walk: Option<(&[Vec<u16>; 2], &CellStructure)>,
     stride: u32,
 ) -> [Vec<f64>; 2] {
+    prepass_counting(cs, scene, width, height, walk, stride).0
+}
+
+/// `prepass`, and the times its rays moved between nodes (walking under
+/// a mapping; 0 without one).
+fn prepass_counting(
+    cs: &CellStructure,
+    scene: &Scene,
+    width: u32,
+    height: u32,
+    walk: Option<(&[Vec<u16>; 2], &CellStructure)>,
+    stride: u32,
+) -> ([Vec<f64>; 2], u64) {
     let cam = CameraFrame::new(scene, width, height);
     // On the host's cores, before any node starts, rows shared out in
     // turn. Each pixel's work is counted by its own rays alone (mailboxes
@@ -212,7 +241,7 @@ fn prepass(
         .skip((stride / 2).min(height - 1) as usize)
         .step_by(stride as usize)
         .collect();
-    let parts: Vec<[Vec<u64>; 2]> = std::thread::scope(|scope| {
+    let parts: Vec<([Vec<u64>; 2], u64)> = std::thread::scope(|scope| {
         let handles: Vec<_> = (0..threads.min(rows.len()).max(1))
             .map(|t| {
                 let (rows, cam) = (&rows, &cam);
@@ -241,7 +270,8 @@ fn prepass(
                             }
                         }
                     }
-                    tracer.recorded_work().expect("recording").clone()
+                    let work = tracer.recorded_work().expect("recording").clone();
+                    (work, tracer.recorded_moves())
                 })
             })
             .collect();
@@ -250,11 +280,12 @@ fn prepass(
             .map(|h| h.join().expect("a pre-pass thread"))
             .collect()
     });
-    [0, 1].map(|r| {
-        (0..parts[0][r].len())
-            .map(|s| parts.iter().map(|p| p[r][s]).sum::<u64>() as f64)
+    let work = [0, 1].map(|r| {
+        (0..parts[0].0[r].len())
+            .map(|s| parts.iter().map(|p| p.0[r][s]).sum::<u64>() as f64)
             .collect()
-    })
+    });
+    (work, parts.iter().map(|p| p.1).sum())
 }
 
 /// Each node's work under `owner` as the pre-pass predicts it, from every

@@ -174,6 +174,31 @@ fn heavy_super_cells_are_split_for_the_balance() {
     assert!(plan.cells.stats.super_cells > plain.stats.super_cells);
 }
 
+/// Splits that would multiply the crossings between nodes are not made:
+/// in a hall of mirrors with a glass ball every ray goes everywhere, and
+/// split super cells only send it between nodes more often. The heavy
+/// super cells are there (the split would be made by the balance alone).
+#[test]
+fn splits_that_multiply_the_crossings_are_not_made() {
+    use hypercast::machine::host::Plan;
+    use hypercast::trace::CameraFrame;
+    let text = hypercast::r#gen::stress::mirror_hall(64, true, 80, 60);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("hall.ron");
+    std::fs::write(&path, text).unwrap();
+    let scene = load_scene(&path).unwrap();
+    let (w, h, d) = (80, 60, 5);
+    let plan = Plan::new(&scene, &topo(d), &MachineOptions::new(w, h, 1));
+    assert_eq!(plan.split_super_cells, 0);
+    let cam = CameraFrame::new(&scene, w, h);
+    let pixel_area = (2.0 * cam.half_w / f64::from(w)) * (2.0 * cam.half_h / f64::from(h));
+    let heavy = machine::mapping::hot(&plan.cells, &plan.work, d, pixel_area);
+    assert!(
+        heavy.iter().any(|r| !r.is_empty()),
+        "no heavy super cell to split"
+    );
+}
+
 /// Super cells added and split for the balance copy subtrees into more
 /// cells. Where that makes a share too large for its node, the plan falls
 /// back to a leaner subdivision that fits rather than refusing the scene
