@@ -1061,7 +1061,7 @@ impl CellTracer<'_> {
     /// Whether cell `k` of `rc` is held elsewhere and the ray's part in it
     /// (`t_in` to `t_end`) meets the hull of its content: where a walk
     /// stops and the ray moves to the owner. The machine's walk and the
-    /// mapping's pre-pass (`machine_step`) decide by this one test.
+    /// mapping's pre-pass (`recorded_step`) decide by this one test.
     #[inline]
     fn meets_remote(&self, rc: &RegionCells, k: u32, ray: &Ray, t_in: f64, t_end: f64) -> bool {
         let t = rc.subtree[k as usize];
@@ -1086,49 +1086,14 @@ struct OnNode {
 }
 
 impl CellTracer<'_> {
-    /// When recording for a mapping (`record_work_for`), what the machine
-    /// does at cell `k` of super cell `s`, as `walk` does it there: the
-    /// cell is the ray's node's, or its ray part misses the cell's content
-    /// (then the node walks through it, and the super cell it is booked to
-    /// is returned), or the ray moves to the owner, with cold mailboxes.
-    #[allow(clippy::too_many_arguments)]
-    fn machine_step(
-        &mut self,
-        on: &mut Option<OnNode>,
-        region: Region,
-        s: u32,
-        k: u32,
-        ray: &Ray,
-        t_in: f64,
-        t_end: f64,
-    ) -> Option<(Region, u32)> {
-        let (owners, skeleton) = self.owners.as_ref()?;
-        let node = owners[region as usize][s as usize];
-        let here = OnNode {
-            node,
-            region,
-            super_cell: s,
-        };
-        match *on {
-            Some(o) if o.node != node => {
-                if !self.meets_remote(skeleton.region(region), k, ray, t_in, t_end) {
-                    return Some((o.region, o.super_cell));
-                }
-                self.ray_id += 1;
-                self.moves += 1;
-                *on = Some(here);
-            }
-            _ => *on = Some(here),
-        }
-        None
-    }
-}
-
-impl CellTracer<'_> {
     /// The walk's step in cell `k` of super cell `s` when recording work
-    /// (`record_work`): the cell's search, as a plain walk does it, unless
-    /// the machine's walker would pass through it (`machine_step`), and
-    /// the work booked to the super cell where the machine does it.
+    /// (`record_work`): the cell's search, as a plain walk does it, and
+    /// the work booked to the super cell where the machine does it. When
+    /// recording for a mapping (`record_work_for`), as the machine does it
+    /// there: the cell is the ray's node's, or its ray part misses the
+    /// cell's content (then the node walks through it, and the work is
+    /// booked to the super cell the ray is on), or the ray moves to the
+    /// owner, with cold mailboxes.
     #[allow(clippy::too_many_arguments)]
     fn recorded_step(
         &mut self,
@@ -1141,7 +1106,27 @@ impl CellTracer<'_> {
         (t_lo, t_end): (f64, f64),
     ) -> Option<Hit> {
         let subtree = self.cs.region(region).subtree[k as usize];
-        let through = self.machine_step(on, region, s, k, ray, t_in, t_end);
+        let mut through = None;
+        if let Some((owners, skeleton)) = &self.owners {
+            let node = owners[region as usize][s as usize];
+            let here = OnNode {
+                node,
+                region,
+                super_cell: s,
+            };
+            match *on {
+                Some(o) if o.node != node => {
+                    if self.meets_remote(skeleton.region(region), k, ray, t_in, t_end) {
+                        self.ray_id += 1;
+                        self.moves += 1;
+                        *on = Some(here);
+                    } else {
+                        through = Some((o.region, o.super_cell));
+                    }
+                }
+                _ => *on = Some(here),
+            }
+        }
         let (tests, met) = (self.counters.intersection_tests, self.counters.mailbox_hits);
         let hit = if subtree < REMOTE && t_end >= t_in && through.is_none() {
             self.in_cell(subtree, ray, t_lo, t_end)

@@ -166,7 +166,7 @@ const HOT_ROUNDS: usize = 2;
 
 /// The most crossings between nodes a split structure may have, against
 /// the structure as built, by the pre-pass walked under each mapping
-/// (`mapping::map_counting`). A split halves regions whatever their
+/// (`mapping::map`). A split halves regions whatever their
 /// content; where the rays of a scene go everywhere (the stress cases'
 /// hall of mirrors with a glass ball: its 14 super cells split into 129
 /// on 32 nodes) every reflection then crosses between nodes, and with
@@ -304,8 +304,7 @@ impl Plan {
         let cam = crate::trace::CameraFrame::new(scene, w, h);
         let pixel_area = (2.0 * cam.half_w / f64::from(w)) * (2.0 * cam.half_h / f64::from(h));
         let mut round = 0;
-        let (mut work, mut owner, as_built) =
-            mapping::map_counting(&cells, scene, w, h, opts.mapping, d);
+        let (mut work, mut owner, as_built) = mapping::map(&cells, scene, w, h, opts.mapping, d);
         while opts.mapping == Mapping::Balanced
             && sub == Subdivision::Balanced
             && round < HOT_ROUNDS
@@ -325,8 +324,7 @@ impl Plan {
                 cell_opts,
                 &[&next_hot[0], &next_hot[1]],
             );
-            let (next_work, next_owner, moves) =
-                mapping::map_counting(&next, scene, w, h, opts.mapping, d);
+            let (next_work, next_owner, moves) = mapping::map(&next, scene, w, h, opts.mapping, d);
             // Splits trade messages for balance; past this, they cost more
             // than they even out (`HOT_CROSSINGS`).
             if moves as f64 > HOT_CROSSINGS * as_built as f64 {

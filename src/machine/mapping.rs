@@ -47,25 +47,13 @@ impl Mapping {
 /// Pixels per side of the pre-pass's sampling grid cell.
 pub const PREPASS_STRIDE: u32 = 8;
 
-/// The estimated work of every super cell, per region, and the owner of
+/// The estimated work of every super cell, per region, the owner of
 /// every super cell for `2^d` nodes (`assign`, then for `Balanced` the
-/// `refine` rounds against pre-passes walked under the mapping).
+/// `refine` rounds against pre-passes walked under the mapping), and how
+/// many times the rays of the last pre-pass walked under the mapping
+/// moved between nodes (0 where none was walked so: one node, or
+/// `EqualArea`): the estimate of the paths the machine will send.
 pub fn map(
-    cs: &CellStructure,
-    scene: &Scene,
-    width: u32,
-    height: u32,
-    mapping: Mapping,
-    d: u32,
-) -> ([Vec<f64>; 2], [Vec<u16>; 2]) {
-    let (work, owner, _) = map_counting(cs, scene, width, height, mapping, d);
-    (work, owner)
-}
-
-/// `map`, and how many times the rays of its last pre-pass walked under
-/// the mapping moved between nodes (0 where none was walked so: one node,
-/// or `EqualArea`): the estimate of the paths the machine will send.
-pub fn map_counting(
     cs: &CellStructure,
     scene: &Scene,
     width: u32,
@@ -97,7 +85,7 @@ pub fn map_counting(
             (work, owner, 0)
         }
         Mapping::Balanced => {
-            let mut work = prepass(cs, scene, width, height, None, PREPASS_STRIDE);
+            let (mut work, _) = prepass(cs, scene, width, height, None, PREPASS_STRIDE);
             let mut owner = assign(cs, &beside, &work, d);
             if d == 0 {
                 return (work, owner, 0);
@@ -111,7 +99,7 @@ pub fn map_counting(
             let mut moves = 0;
             for _ in 0..REFINE_PASSES {
                 let walk = Some((&owner, &skeleton));
-                (work, moves) = prepass_counting(cs, scene, width, height, walk, PREPASS_STRIDE);
+                (work, moves) = prepass(cs, scene, width, height, walk, PREPASS_STRIDE);
                 refine(&beside, &work, &mut owner, d);
             }
             (work, owner, moves)
@@ -211,20 +199,10 @@ fn clamped(r: &Rect, (lo, hi): ([f64; 2], [f64; 2])) -> [Option<(f64, f64)>; 2] 
 /// change of owner a crossing (the machine's walk-through ignored)
 /// counted 26 million tests where the nodes made 20 million, and its
 /// per-node loads did not correlate with the nodes' (-0.1).
+///
+/// Also returned: the times its rays moved between nodes (walking under a
+/// mapping; 0 without one).
 fn prepass(
-    cs: &CellStructure,
-    scene: &Scene,
-    width: u32,
-    height: u32,
-    walk: Option<(&[Vec<u16>; 2], &CellStructure)>,
-    stride: u32,
-) -> [Vec<f64>; 2] {
-    prepass_counting(cs, scene, width, height, walk, stride).0
-}
-
-/// `prepass`, and the times its rays moved between nodes (walking under
-/// a mapping; 0 without one).
-fn prepass_counting(
     cs: &CellStructure,
     scene: &Scene,
     width: u32,
@@ -302,7 +280,7 @@ pub fn predicted_loads(
     stride: u32,
 ) -> Vec<f64> {
     let skeleton = skeleton(cs, scene);
-    let work = prepass(
+    let (work, _) = prepass(
         cs,
         scene,
         width,

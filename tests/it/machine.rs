@@ -160,7 +160,7 @@ fn heavy_super_cells_are_split_for_the_balance() {
             ..CellOptions::default()
         },
     );
-    let (work, _) = machine::mapping::map(&plain, &scene, w, h, machine::Mapping::Balanced, d);
+    let (work, _, _) = machine::mapping::map(&plain, &scene, w, h, machine::Mapping::Balanced, d);
     let heaviest = |work: &[Vec<f64>; 2]| {
         let total: f64 = work.iter().flatten().sum();
         work.iter().flatten().cloned().fold(0.0, f64::max) / total
