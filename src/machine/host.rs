@@ -180,6 +180,15 @@ const HOT_ROUNDS: usize = 2;
 /// `glass.ron` 1.45, `jagged_ball.ron` 0.92 and 1.02.
 const HOT_CROSSINGS: f64 = 2.0;
 
+/// Crossings between nodes per pixel of the pre-pass (`Plan::new`) past
+/// which the plan is made again with the cost model's own super cells,
+/// and kept if that halves them (`HOT_CROSSINGS`). On 32 nodes the
+/// bundled scenes cross 0.3 (`csg_basics.ron`) to 11 times (`glass.ron`)
+/// per pixel, `house.ron` 8; the stress cases' glass hall 322, as the 14
+/// super cells that the machine's 8 per node made of a room of three
+/// primitives send every reflection to another node.
+const SCATTERED: f64 = 32.0;
+
 /// What the host decides before any node starts: the structure, the
 /// mapping, every node's share and its size, the flow-control window.
 pub struct Plan {
@@ -202,6 +211,9 @@ pub struct Plan {
     pub rebuilds: usize,
     /// What the machine added to the subdivision for its balance.
     pub subdivision: Subdivision,
+    /// The times the rays of the mapping's pre-pass, walked under the
+    /// mapping, moved between nodes (`mapping::map`).
+    pub crossings: u64,
 }
 
 /// How much the machine adds to the paper's subdivision for its balance
@@ -219,6 +231,9 @@ pub enum Subdivision {
     Unsplit,
     /// The cost model's own super cells, as on one node.
     Paper,
+    /// The same, because the super cells added for the balance sent the
+    /// rays between nodes at every turn (`SCATTERED`).
+    Gathered,
 }
 
 impl Subdivision {
@@ -228,6 +243,7 @@ impl Subdivision {
             Subdivision::Balanced => "balanced",
             Subdivision::Unsplit => "unsplit",
             Subdivision::Paper => "paper",
+            Subdivision::Gathered => "gathered",
         }
     }
 
@@ -240,6 +256,9 @@ impl Subdivision {
             }
             Subdivision::Paper => {
                 "the cost model's: with super cells added for balance, a share would not fit its node"
+            }
+            Subdivision::Gathered => {
+                "the cost model's: with super cells added for balance, rays crossed between nodes at every turn"
             }
         }
     }
@@ -254,7 +273,23 @@ impl Plan {
     /// The leaner plans are made only when the first does not fit.
     pub fn new(scene: &Scene, topo: &Topology, opts: &MachineOptions) -> Plan {
         let first = Plan::with_subdivision(scene, topo, opts, Subdivision::Balanced);
-        if first.window > 0 || topo.dimension == 0 {
+        if topo.dimension == 0 {
+            return first;
+        }
+        if first.window > 0 {
+            // Rays that cross between nodes at every turn: the super cells
+            // added for the balance may be what sends them (`SCATTERED`).
+            let per_pixel =
+                first.crossings as f64 / mapping::prepass_pixels(opts.width, opts.height) as f64;
+            if per_pixel <= SCATTERED {
+                return first;
+            }
+            let gathered = Plan::with_subdivision(scene, topo, opts, Subdivision::Gathered);
+            if gathered.window > 0
+                && HOT_CROSSINGS * (gathered.crossings as f64) < first.crossings as f64
+            {
+                return gathered;
+            }
             return first;
         }
         let mut best = first;
@@ -285,7 +320,8 @@ impl Plan {
         let d = topo.dimension;
         let n = 1usize << d;
         let cell_opts = CellOptions {
-            min_super_cells: if n > 1 && sub != Subdivision::Paper {
+            min_super_cells: if n > 1 && matches!(sub, Subdivision::Balanced | Subdivision::Unsplit)
+            {
                 crate::cells::SUPER_CELLS_PER_NODE * n
             } else {
                 0
@@ -305,6 +341,7 @@ impl Plan {
         let pixel_area = (2.0 * cam.half_w / f64::from(w)) * (2.0 * cam.half_h / f64::from(h));
         let mut round = 0;
         let (mut work, mut owner, as_built) = mapping::map(&cells, scene, w, h, opts.mapping, d);
+        let mut crossings = as_built;
         while opts.mapping == Mapping::Balanced
             && sub == Subdivision::Balanced
             && round < HOT_ROUNDS
@@ -330,7 +367,7 @@ impl Plan {
             if moves as f64 > HOT_CROSSINGS * as_built as f64 {
                 break;
             }
-            (cells, hot, work, owner) = (next, next_hot, next_work, next_owner);
+            (cells, hot, work, owner, crossings) = (next, next_hot, next_work, next_owner, moves);
             round += 1;
         }
         let prepass_seconds = t_pre.elapsed().as_secs_f64();
@@ -362,6 +399,7 @@ impl Plan {
             split_super_cells: hot.iter().map(Vec::len).sum(),
             rebuilds: round,
             subdivision: sub,
+            crossings,
         }
     }
 

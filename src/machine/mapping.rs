@@ -47,6 +47,14 @@ impl Mapping {
 /// Pixels per side of the pre-pass's sampling grid cell.
 pub const PREPASS_STRIDE: u32 = 8;
 
+/// The pixels the pre-pass traces of a `width` by `height` image: every
+/// `PREPASS_STRIDE`-th of every `PREPASS_STRIDE`-th row, from the middle
+/// of the first grid cell (`prepass`).
+pub fn prepass_pixels(width: u32, height: u32) -> u64 {
+    let along = |n: u32| u64::from((n - (PREPASS_STRIDE / 2).min(n - 1)).div_ceil(PREPASS_STRIDE));
+    along(width) * along(height)
+}
+
 /// The estimated work of every super cell, per region, the owner of
 /// every super cell for `2^d` nodes (`assign`, then for `Balanced` the
 /// `refine` rounds against pre-passes walked under the mapping), and how

@@ -178,9 +178,11 @@ fn heavy_super_cells_are_split_for_the_balance() {
 /// in a hall of mirrors with a glass ball every ray goes everywhere, and
 /// split super cells only send it between nodes more often. The heavy
 /// super cells are there (the split would be made by the balance alone).
+/// And where even the unsplit super cells send the rays between nodes at
+/// every turn, the plan keeps only the cost model's own.
 #[test]
 fn splits_that_multiply_the_crossings_are_not_made() {
-    use hypercast::machine::host::Plan;
+    use hypercast::machine::host::{Plan, Subdivision};
     use hypercast::trace::CameraFrame;
     let text = hypercast::r#gen::stress::mirror_hall(64, true, 80, 60);
     let dir = tempfile::tempdir().unwrap();
@@ -188,7 +190,8 @@ fn splits_that_multiply_the_crossings_are_not_made() {
     std::fs::write(&path, text).unwrap();
     let scene = load_scene(&path).unwrap();
     let (w, h, d) = (80, 60, 5);
-    let plan = Plan::new(&scene, &topo(d), &MachineOptions::new(w, h, 1));
+    let o = MachineOptions::new(w, h, 1);
+    let plan = Plan::with_subdivision(&scene, &topo(d), &o, Subdivision::Balanced);
     assert_eq!(plan.split_super_cells, 0);
     let cam = CameraFrame::new(&scene, w, h);
     let pixel_area = (2.0 * cam.half_w / f64::from(w)) * (2.0 * cam.half_h / f64::from(h));
@@ -197,6 +200,21 @@ fn splits_that_multiply_the_crossings_are_not_made() {
         heavy.iter().any(|r| !r.is_empty()),
         "no heavy super cell to split"
     );
+    // Its rays cross between nodes at every turn even unsplit, so the
+    // plan gathers them on the cost model's super cells: the single
+    // node's image without a hop.
+    let chosen = Plan::new(&scene, &topo(d), &o);
+    assert_eq!(chosen.subdivision, Subdivision::Gathered);
+    assert!(chosen.crossings * 2 < plan.crossings);
+    let (film, stats, _) = machine::render(&scene, &topo(d), &o, &|_| {}).unwrap();
+    assert_eq!(stats.subdivision, Subdivision::Gathered);
+    check_stats(&scene, &stats);
+    let (alone, _) = machine(&scene, 0, w, h, 16);
+    assert_eq!(differing(&film, &alone), 0);
+    // A scene whose rays mostly stay keeps the super cells for balance.
+    let house = load_scene(&repo("scenes/house.ron")).unwrap();
+    let plan = Plan::new(&house, &topo(d), &MachineOptions::new(128, 96, 1));
+    assert_eq!(plan.subdivision, Subdivision::Balanced);
 }
 
 /// Super cells added and split for the balance copy subtrees into more
