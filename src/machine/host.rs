@@ -219,8 +219,9 @@ pub struct Plan {
 /// How much the machine adds to the paper's subdivision for its balance
 /// (`Plan::new`): more super cells than the cost model makes, so that the
 /// mapping has pieces to balance with (`SUPER_CELLS_PER_NODE`), and heavy
-/// super cells split (`mapping::hot`). Both copy subtrees into more cells:
-/// where that makes a share too large for its node, the plan is made
+/// super cells split (`mapping::hot`). Both copy subtrees into more cells
+/// and send rays between nodes more often: where that makes a share too
+/// large for its node, or the rays cross at every turn, the plan is made
 /// again with less of it.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Subdivision {
@@ -267,10 +268,12 @@ impl Subdivision {
 impl Plan {
     /// Builds the structure, maps it on `2^d` nodes and sizes the shares:
     /// with the subdivision for balance where every share fits its node,
-    /// else the leanest plan that fits (`Subdivision`), else, to be
-    /// refused by `check`, the plan whose largest share is smallest, so
-    /// that the memory the refusal names is the least that would do.
-    /// The leaner plans are made only when the first does not fit.
+    /// unless its rays cross between nodes at every turn and the cost
+    /// model's own super cells halve that (`SCATTERED`, `Gathered`); else
+    /// the leanest plan that fits (`Subdivision`); else, to be refused by
+    /// `check`, the plan whose largest share is smallest, so that the
+    /// memory the refusal names is the least that would do. The other
+    /// plans are made only where the first does not fit or scatters.
     pub fn new(scene: &Scene, topo: &Topology, opts: &MachineOptions) -> Plan {
         let first = Plan::with_subdivision(scene, topo, opts, Subdivision::Balanced);
         if topo.dimension == 0 {
