@@ -295,8 +295,14 @@ impl Plan {
             }
             return first;
         }
+        // Without splits, the unsplit plan is this one again.
+        let leaner: &[Subdivision] = if first.split_super_cells == 0 {
+            &[Subdivision::Paper]
+        } else {
+            &[Subdivision::Unsplit, Subdivision::Paper]
+        };
         let mut best = first;
-        for sub in [Subdivision::Unsplit, Subdivision::Paper] {
+        for &sub in leaner {
             let plan = Plan::with_subdivision(scene, topo, opts, sub);
             if plan.window > 0 {
                 return plan;
