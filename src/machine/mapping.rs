@@ -51,8 +51,14 @@ pub const PREPASS_STRIDE: u32 = 8;
 /// `PREPASS_STRIDE`-th of every `PREPASS_STRIDE`-th row, from the middle
 /// of the first grid cell (`prepass`).
 pub fn prepass_pixels(width: u32, height: u32) -> u64 {
-    let along = |n: u32| u64::from((n - (PREPASS_STRIDE / 2).min(n - 1)).div_ceil(PREPASS_STRIDE));
+    let along = |n| sampled(n, PREPASS_STRIDE).count() as u64;
     along(width) * along(height)
+}
+
+/// The columns (or rows) of `n` that a pre-pass of `stride` traces: every
+/// `stride`-th, from the middle of the first grid cell.
+fn sampled(n: u32, stride: u32) -> std::iter::StepBy<std::ops::Range<u32>> {
+    ((stride / 2).min(n - 1)..n).step_by(stride as usize)
 }
 
 /// The estimated work of every super cell, per region, the owner of
@@ -223,10 +229,7 @@ fn prepass(
     // turn. Each pixel's work is counted by its own rays alone (mailboxes
     // are keyed by ray), so the sums are the same for any thread count.
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let rows: Vec<u32> = (0..height)
-        .skip((stride / 2).min(height - 1) as usize)
-        .step_by(stride as usize)
-        .collect();
+    let rows: Vec<u32> = sampled(height, stride).collect();
     let parts: Vec<([Vec<u64>; 2], u64)> = std::thread::scope(|scope| {
         let handles: Vec<_> = (0..threads.min(rows.len()).max(1))
             .map(|t| {
@@ -242,7 +245,7 @@ fn prepass(
                     let (mut counts, mut stack, mut jobs) =
                         (RayCounts::default(), Vec::new(), Vec::new());
                     for &j in rows.iter().skip(t).step_by(threads) {
-                        for i in ((stride / 2).min(width - 1)..width).step_by(stride as usize) {
+                        for i in sampled(width, stride) {
                             jobs.clear();
                             pixel_jobs(cam, i, j, 1, &mut jobs);
                             for job in jobs.drain(..) {
