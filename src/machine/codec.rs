@@ -125,8 +125,22 @@ pub fn encode_stamped<T: Serialize>(
 }
 
 /// The frames of an envelope: each one's stamp and message, in order.
-pub fn decode_envelope<T: DeserializeOwned>(mut bytes: &[u8]) -> Result<Vec<(f64, T)>, String> {
+pub fn decode_envelope<T: DeserializeOwned>(bytes: &[u8]) -> Result<Vec<(f64, T)>, String> {
     let mut out = Vec::new();
+    for_each_frame(bytes, |stamp, body| {
+        out.push((stamp, body));
+        Ok(())
+    })?;
+    Ok(out)
+}
+
+/// Hands each frame of an envelope, in order, to `take` as it is decoded,
+/// without gathering them first (`decode_envelope`); stops at the first
+/// error, of the envelope or of `take`.
+pub fn for_each_frame<T: DeserializeOwned>(
+    mut bytes: &[u8],
+    mut take: impl FnMut(f64, T) -> Result<(), String>,
+) -> Result<(), String> {
     while !bytes.is_empty() {
         let Some((body_len, n)) = read_leb128(bytes) else {
             return Err(format!("a frame of {} bytes has no length", bytes.len()));
@@ -143,10 +157,10 @@ pub fn decode_envelope<T: DeserializeOwned>(mut bytes: &[u8]) -> Result<Vec<(f64
                 rest.len()
             ));
         }
-        out.push((stamp, decode(&rest[..body_len])?));
+        take(stamp, decode(&rest[..body_len])?)?;
         bytes = &rest[body_len..];
     }
-    Ok(out)
+    Ok(())
 }
 
 /// What a node holds that lets paths leave out what it can recompute.
