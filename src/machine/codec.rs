@@ -50,26 +50,42 @@ pub fn decode<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, String> {
     Ok(msg)
 }
 
+/// The length of a stamped frame (`append_stamped`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FrameLen {
+    /// What the modelled machine sends: the length header and the body.
+    /// Links are charged for these bytes and they are the ones counted.
+    pub wire: usize,
+    /// What the frame takes in the envelope, the stamp included: the
+    /// bytes a node holds while it waits.
+    pub held: usize,
+}
+
+/// Bytes of a frame's stamp.
+const STAMP: usize = 8;
+
 /// Appends `body` to `envelope` as one stamped frame: the body's length
 /// (LEB128: one byte below 128, two below 16,384), the virtual time at
 /// which its sender finishes sending it, which `stamp` computes from the
-/// frame's length (the stamp itself is always 8 bytes, an f64), and the
-/// body's bytes. Returns the frame's length.
+/// frame's length on the wire, and the body's bytes.
 ///
 /// An envelope is what moves over a link in one transfer: one or more
 /// frames, each a message of the modelled machine. The emulation gathers
 /// the messages a node sends during a slice of its work into one envelope
 /// per link, so that a message costs the host one channel operation per
-/// slice, not one each; the modelled costs are the frames' own.
+/// slice, not one each; the modelled costs are the frames' own. The stamp
+/// (8 bytes, an f64) is the emulation's, as the envelope is: a message of
+/// the modelled machine carries no virtual time, so it is neither charged
+/// to the link nor counted (`FrameLen::wire`), though it is held.
 pub fn append_stamped<T: Serialize>(
     envelope: &mut Vec<u8>,
     body: &T,
     stamp: impl FnOnce(usize) -> f64,
-) -> Result<usize, String> {
+) -> Result<FrameLen, String> {
     // The body goes after the header, whose length depends on the body's:
     // encode it at the end, then move it up behind the header.
     let start = envelope.len();
-    const ROOM: usize = 10 + 8;
+    const ROOM: usize = 10 + STAMP;
     envelope.extend_from_slice(&[0u8; ROOM]);
     if let Err(e) = bincode::serde::encode_into_std_write(body, envelope, config()) {
         envelope.truncate(start);
@@ -78,13 +94,16 @@ pub fn append_stamped<T: Serialize>(
     let body_len = envelope.len() - start - ROOM;
     let mut head = [0u8; 10];
     let n = leb128(body_len as u64, &mut head);
-    let len = n + 8 + body_len;
-    let t = stamp(len);
+    let wire = n + body_len;
+    let t = stamp(wire);
     envelope[start..start + n].copy_from_slice(&head[..n]);
-    envelope[start + n..start + n + 8].copy_from_slice(&t.to_le_bytes());
-    envelope.copy_within(start + ROOM..start + ROOM + body_len, start + n + 8);
-    envelope.truncate(start + len);
-    Ok(len)
+    envelope[start + n..start + n + STAMP].copy_from_slice(&t.to_le_bytes());
+    envelope.copy_within(start + ROOM..start + ROOM + body_len, start + n + STAMP);
+    envelope.truncate(start + wire + STAMP);
+    Ok(FrameLen {
+        wire,
+        held: wire + STAMP,
+    })
 }
 
 /// `v` in LEB128 into `out`; returns the bytes used.
@@ -114,14 +133,14 @@ fn read_leb128(bytes: &[u8]) -> Option<(u64, usize)> {
     None
 }
 
-/// An envelope of one stamped frame.
+/// An envelope of one stamped frame, and the frame's length.
 pub fn encode_stamped<T: Serialize>(
     body: &T,
     stamp: impl FnOnce(usize) -> f64,
-) -> Result<Vec<u8>, String> {
+) -> Result<(Vec<u8>, FrameLen), String> {
     let mut envelope = Vec::new();
-    append_stamped(&mut envelope, body, stamp)?;
-    Ok(envelope)
+    let len = append_stamped(&mut envelope, body, stamp)?;
+    Ok((envelope, len))
 }
 
 /// The frames of an envelope: each one's stamp and message, in order.
@@ -475,14 +494,17 @@ mod tests {
         assert!(decode::<Vec<(u32, f64, Option<String>)>>(&long).is_err());
         assert!(decode::<Vec<(u32, f64, Option<String>)>>(&b[..b.len() - 1]).is_err());
         let mut seen = 0;
-        let mut env = encode_stamped(&v, |len| {
+        let (mut env, len) = encode_stamped(&v, |len| {
             seen = len;
             2.5
         })
         .unwrap();
-        assert_eq!(seen, env.len());
+        // The stamp is held, not sent: the wire has the header and body.
+        assert_eq!(seen, len.wire);
+        assert_eq!((len.held, env.len()), (len.wire + 8, len.wire + 8));
+        assert_eq!(len.wire, 1 + b.len());
         let n = append_stamped(&mut env, &vec![(3u32, 0.5f64, None::<String>)], |_| 4.0).unwrap();
-        assert_eq!(env.len(), seen + n);
+        assert_eq!(env.len(), len.held + n.held);
         let back: Vec<(f64, Msg)> = decode_envelope(&env).unwrap();
         assert_eq!(back.len(), 2);
         assert_eq!((back[0].0, &back[0].1), (2.5, &v));

@@ -673,7 +673,7 @@ fn node_thread(id: u16, links: &mut dyn NodeLinks) {
             .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
             .unwrap_or_else(|| "panicked".into()),
     };
-    let Ok(mut bytes) = encode_stamped(&ToHost::Failed { node: id, error }, |_| 0.0) else {
+    let Ok((mut bytes, _)) = encode_stamped(&ToHost::Failed { node: id, error }, |_| 0.0) else {
         return;
     };
     loop {
@@ -743,13 +743,13 @@ impl Run {
 
     fn send(&mut self, host: &mut dyn HostLinks, node: u16, body: &ToNode) -> Result<()> {
         let (model, clock) = (self.model, &mut self.clock);
-        let bytes = encode_stamped(body, |len| {
+        let (bytes, len) = encode_stamped(body, |len| {
             *clock += model.send_cost(len);
             *clock
         })
         .map_err(Error::Render)?;
         self.messages += 1;
-        self.bytes += bytes.len() as u64;
+        self.bytes += len.wire as u64;
         self.transmit(host, node, bytes)
     }
 
@@ -765,7 +765,7 @@ impl Run {
         })
         .map_err(Error::Render)?;
         self.messages += 1;
-        self.bytes += len as u64;
+        self.bytes += len.wire as u64;
         Ok(())
     }
 

@@ -479,7 +479,7 @@ impl<'a> Node<'a> {
         let from = self.id;
         for k in 0..self.share.dimension as usize {
             let len = append_stamped(&mut self.waiting[k], &ToNode::Clock { from }, |_| bound)?;
-            self.hold(len);
+            self.hold(len.held);
         }
         Ok(())
     }
@@ -971,8 +971,8 @@ impl<'a> Node<'a> {
         self.excluded += t0.elapsed().as_secs_f64();
         self.carries[i] = true;
         self.report.messages_sent += 1;
-        self.report.bytes_sent += len as u64;
-        self.hold(len);
+        self.report.bytes_sent += len.wire as u64;
+        self.hold(len.held);
         Ok(())
     }
 
