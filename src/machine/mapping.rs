@@ -14,8 +14,8 @@
 //!   iPSC. On more than one node the pre-pass then walks as the machine
 //!   will under the mapping so far (a ray moves to a node where its part
 //!   in a cell meets that cell's content, with cold mailboxes; the walk
-//!   through other cells is its node's work), and the mapping is refined
-//!   against it (`REFINE_PASSES`). So walked, the pre-pass predicts each
+//!   through other cells is its node's work), the grid is cut again by
+//!   what it measured (`RECUTS`) and then refined. So walked, the pre-pass predicts each
 //!   node's cells and tests: at every pixel, exactly; at every 8th of
 //!   every 8th row, correlated at 0.99 with what the nodes then count;
 //! * `EqualArea`, the naive split, weighs each super cell by its share of
@@ -99,23 +99,48 @@ pub fn map(
             (work, owner, 0)
         }
         Mapping::Balanced => {
-            let (mut work, _) = prepass(cs, scene, width, height, None, PREPASS_STRIDE);
-            let mut owner = assign(cs, &beside, &work, d);
+            let (first, _) = prepass(cs, scene, width, height, None, PREPASS_STRIDE);
             if d == 0 {
-                return (work, owner, 0);
+                let owner = assign(cs, &beside, &first, d);
+                return (first, owner, 0);
             }
             // Every cell's hull, once for the walks below.
             let skeleton = skeleton(cs, scene);
             // Walked again as the machine will, under the mapping so far:
             // the work a ray repeats after crossing to another node falls
-            // on that node. The mapping then moves only a few super cells
-            // (`refine`), so the walk stays close to what it measured.
-            let mut moves = 0;
-            for _ in 0..REFINE_PASSES {
-                let walk = Some((&owner, &skeleton));
-                (work, moves) = prepass(cs, scene, width, height, walk, PREPASS_STRIDE);
-                refine(&beside, &work, &mut owner, d);
+            // on that node. The grid is cut again by the mean of what the
+            // walks measured (`RECUTS`), which moves the cuts less at each
+            // round, so the walk stays close to what it measured; a few
+            // super cells then move between nodes (`refine`).
+            let mut owner = grid(cs, &first, d);
+            let walk = |owner: &[Vec<u16>; 2]| {
+                prepass(
+                    cs,
+                    scene,
+                    width,
+                    height,
+                    Some((owner, &skeleton)),
+                    PREPASS_STRIDE,
+                )
+            };
+            let (mut work, mut moves) = walk(&owner);
+            let mut sum = first;
+            for round in 1..=RECUTS {
+                if predicted_imbalance(&work, &owner, d) <= EVEN {
+                    break;
+                }
+                for (s, w) in sum.iter_mut().zip(&work) {
+                    for (a, b) in s.iter_mut().zip(w) {
+                        *a += b;
+                    }
+                }
+                let mean = sum
+                    .clone()
+                    .map(|v| v.into_iter().map(|x| x / (round + 1) as f64).collect());
+                owner = grid(cs, &mean, d);
+                (work, moves) = walk(&owner);
             }
+            refine(&beside, &work, &mut owner, d);
             (work, owner, moves)
         }
     }
@@ -320,18 +345,26 @@ fn loads(work: &[Vec<f64>; 2], owner: &[Vec<u16>; 2], d: u32) -> Vec<f64> {
     load
 }
 
-/// How many times the mapping is refined against a pre-pass walked under
-/// it (`map`). Sphereflake level 4, 1024x1024, 32 nodes, the imbalance of
-/// the nodes' counted work (cells + 4 tests, which is deterministic):
-/// 1.24 after one, 1.18 after two, 1.22 after four (each move changes the
-/// work it was chosen by; more rounds also fragment the regions: 3.61,
-/// 3.67 and 3.99 million hops). Cutting the grid again, up to four times,
-/// by the mean of the work measured under the mappings so far, then one
-/// refine, evens the counted work better (sphereflake 1.09, jagged ball
-/// 1.15) for as many hops, but its mapping splits a few more subtrees
-/// over nodes: the sphereflake's structure over 32 nodes became 2.0001x
-/// the single node's, past issue 4's bound, so it is not used.
-const REFINE_PASSES: usize = 2;
+/// How many times, at most, the grid is cut again by the work the
+/// pre-pass measured walking under the mappings so far (`map`), and the
+/// predicted imbalance under which it is not (the cuts are then even
+/// enough; on two nodes the first grid is, and the pre-pass walks once).
+///
+/// Predicted imbalance of the nodes' counted work (cells + 4 tests, which
+/// is deterministic) on 32 nodes, the mapping before (the grid refined
+/// against two walks) against three re-cuts and one refine: sphereflake
+/// level 4 at 1024x1024 1.152 and 1.104, the jagged ball 1.339 and 1.298,
+/// the house 1.483 and 1.461, `csg_basics.ron` 1.334 and 1.150, the
+/// glass scene 1.294 and 1.164. Measured busy imbalance on the
+/// sphereflake 1.15-1.18 before, 1.11-1.12 after, for slightly fewer hops
+/// (3.65 M against 3.67 M). Four re-cuts predicted 1.065 and ran at
+/// 1.09-1.10, but took 3.91 M hops; the structure held over the nodes is
+/// 1.998x the single node's in all three. (Rounds of `refine` alone, the
+/// way before that: 1.24 after one, 1.18 after two, 1.22 after four, as
+/// each move changes the work it was chosen by, and more rounds
+/// fragment the regions.)
+const RECUTS: usize = 3;
+const EVEN: f64 = 1.03;
 
 /// A super cell's place in the mapping: its region, index, the centre of
 /// its rectangle (clamped to the finite part of the plane) and its weight.
