@@ -29,6 +29,19 @@ impl CellStructure {
         scene: &Scene,
         owns: &dyn Fn(Region, u32) -> bool,
     ) -> (CellStructure, Scene) {
+        self.restrict_with(scene, owns, &self.cell_hulls())
+    }
+
+    /// `restrict`, with the hulls of the cells made beforehand
+    /// (`cell_hulls`): every share holds the hulls of the cells it does
+    /// not own, and making them again for each of 32 shares was most of
+    /// the time cutting them.
+    pub fn restrict_with(
+        &self,
+        scene: &Scene,
+        owns: &dyn Fn(Region, u32) -> bool,
+        hulls: &CellHulls,
+    ) -> (CellStructure, Scene) {
         let old = &self.subtrees;
         // The subtree nodes reachable from owned cells.
         let mut keep = vec![false; old.nodes.len()];
@@ -94,7 +107,7 @@ impl CellStructure {
         let mut leaf_span = vec![[0u32; 2]; tree.nodes.len()];
         let mut subtree_leaves: Vec<SubtreeLeaf> = Vec::new();
         let mut regions = self.regions.clone();
-        for r in &mut regions {
+        for (r, hulls) in regions.iter_mut().zip(&hulls.0) {
             let region = r.region;
             r.remote_hull = Vec::new();
             for s in 0..r.supers.len() as u32 {
@@ -106,8 +119,7 @@ impl CellStructure {
                     }
                     if !owned {
                         r.subtree[k] = REMOTE + r.remote_hull.len() as u32;
-                        r.remote_hull
-                            .push(Hull::around(&self.leaf_hull(t), &self.scene_box));
+                        r.remote_hull.push(hulls[k]);
                         continue;
                     }
                     r.subtree[k] = self.renumber_subtree(
@@ -186,6 +198,23 @@ impl CellStructure {
         root
     }
 
+    /// Per region, per cell, the hull of its subtree's leaves (`Hull`;
+    /// `Hull::EMPTY` for a cell without content), for `restrict_with`.
+    pub fn cell_hulls(&self) -> CellHulls {
+        CellHulls(self.regions.each_ref().map(|r| {
+            r.subtree
+                .iter()
+                .map(|&t| {
+                    if t < REMOTE {
+                        Hull::around(&self.leaf_hull(t), &self.scene_box)
+                    } else {
+                        Hull::EMPTY
+                    }
+                })
+                .collect()
+        }))
+    }
+
     /// The hull of the culling boxes of the leaves of the subtree rooted at
     /// `root`. Every boundary the subtree can return is a crossing of a
     /// leaf whose culling box the ray meets, and lies on the part of that
@@ -198,6 +227,10 @@ impl CellStructure {
             .fold(Aabb::EMPTY, |h, l| h.union(&l.cull))
     }
 }
+
+/// Per region, per cell, the hull of the cell's content
+/// (`CellStructure::cell_hulls`).
+pub struct CellHulls([Vec<Hull>; 2]);
 
 /// A box held in 12 bytes: each bound as a 16-bit fraction of the scene
 /// box (`CellStructure::scene_box`), rounded outwards and widened by one

@@ -380,8 +380,9 @@ impl Plan {
             round += 1;
         }
         let prepass_seconds = t_pre.elapsed().as_secs_f64();
+        let hulls = cells.cell_hulls();
         let shares: Vec<(CellStructure, Scene)> = (0..n as u16)
-            .map(|i| cells.restrict(scene, &|r, s| owner[r as usize][s as usize] == i))
+            .map(|i| cells.restrict_with(scene, &|r, s| owner[r as usize][s as usize] == i, &hulls))
             .collect();
         let share_bytes: Vec<u64> = shares
             .iter()
@@ -460,8 +461,9 @@ impl Plan {
         // Each look costs a restriction of the structure: taken in turn,
         // only as far as the hint needs.
         let more_rays = (2 * n + 1) * self.path_bytes;
+        let hulls = self.cells.cell_hulls();
         let skeleton = || {
-            let (c, sc) = self.cells.restrict(scene, &|_, _| false);
+            let (c, sc) = self.cells.restrict_with(scene, &|_, _| false, &hulls);
             node::share_bytes(&c, &sc)
         };
         // Where the worst node owns a few super cells (not hundreds), the
@@ -471,9 +473,11 @@ impl Plan {
                 owned
                     .iter()
                     .map(|&(r, s)| {
-                        let (c, sc) = self
-                            .cells
-                            .restrict(scene, &|rr, ss| rr as usize == r && ss == s);
+                        let (c, sc) = self.cells.restrict_with(
+                            scene,
+                            &|rr, ss| rr as usize == r && ss == s,
+                            &hulls,
+                        );
                         node::share_bytes(&c, &sc)
                     })
                     .max()
