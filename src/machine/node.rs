@@ -645,9 +645,14 @@ impl<'a> Node<'a> {
                 Some(background) if background || self.credits > 0 => {
                     return self.start_primary().map(|()| true);
                 }
-                Some(_) if earliest.is_none() => {
-                    // Only credit can let the node go on: wait for it.
-                    if let Some(&(t, n)) = self.arriving_credits.front() {
+                Some(_) => {
+                    // Only credit lets the node start a primary path: wait
+                    // for it, unless a path arrives first.
+                    if let Some(&(t, n)) = self
+                        .arriving_credits
+                        .front()
+                        .filter(|&&(t, _)| earliest.is_none_or(|a| t < a))
+                    {
                         self.report.waiting_seconds += (t - self.clock).max(0.0);
                         self.clock = self.clock.max(t);
                         self.credits += n;
