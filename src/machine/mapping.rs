@@ -15,9 +15,10 @@
 //!   will under the mapping so far (a ray moves to a node where its part
 //!   in a cell meets that cell's content, with cold mailboxes; the walk
 //!   through other cells is its node's work), the grid is cut again by
-//!   what it measured (`RECUTS`) and then refined. So walked, the pre-pass predicts each
-//!   node's cells and tests: at every pixel, exactly; at every 8th of
-//!   every 8th row, correlated at 0.99 with what the nodes then count;
+//!   what it measured (`RECUTS`) and then refined. So walked, the
+//!   pre-pass predicts each node's cells and tests: at every pixel,
+//!   exactly; at every 8th of every 8th row, correlated at 0.99 with what
+//!   the nodes then count;
 //! * `EqualArea`, the naive split, weighs each super cell by its share of
 //!   the image, so that every node owns as many pixels.
 
