@@ -160,37 +160,24 @@ fn ray_bytes(body: &ToNode) -> usize {
 /// The paths waiting in a node, taken earliest arrival first (ties by
 /// sample, so the order is deterministic).
 ///
-/// The heap orders small keys that name slots holding the paths: the heap
-/// moves its entries at every push and pop, and a path is some 200 bytes.
-/// Slots are reused, so a waiting path costs no allocation of its own.
-/// (The sphereflake at 384x384 on 32 nodes, under callgrind: the heap's
-/// pushes, pops and copies took 705 million instructions with the paths
-/// inline, 453 million with each path boxed, against 2.5 billion in the
-/// walk.)
+/// Each path is boxed: the heap moves its entries at every push and pop,
+/// and a path is some 200 bytes. The sphereflake at 384x384 on 32 nodes,
+/// under callgrind: the heap's pushes, pops and copies took 705 million
+/// instructions with the paths inline, 453 million boxed, against 2.5
+/// billion in the walk. (Reused slots instead of boxes saved another 3%
+/// of a render's instructions, but a freed slot is memory the node keeps
+/// beyond its paths, which the memory plan does not size for.)
 #[derive(Default)]
 struct Queue {
     heap: BinaryHeap<Queued>,
-    slots: Vec<Option<Routed>>,
-    free: Vec<u32>,
 }
 
 impl Queue {
     fn push(&mut self, arrival: f64, r: Routed) {
-        let sample = r.path.sample;
-        let slot = match self.free.pop() {
-            Some(i) => {
-                self.slots[i as usize] = Some(r);
-                i
-            }
-            None => {
-                self.slots.push(Some(r));
-                (self.slots.len() - 1) as u32
-            }
-        };
         self.heap.push(Queued {
             arrival,
-            sample,
-            slot,
+            sample: r.path.sample,
+            routed: Box::new(r),
         });
     }
 
@@ -201,29 +188,15 @@ impl Queue {
 
     /// The earliest path and its arrival.
     fn pop(&mut self) -> Option<(f64, Routed)> {
-        let q = self.heap.pop()?;
-        let r = self.slots[q.slot as usize].take()?;
-        if self.heap.is_empty() {
-            self.slots.clear();
-            self.free.clear();
-        } else {
-            self.free.push(q.slot);
-        }
-        Some((q.arrival, r))
-    }
-
-    /// The bytes of the empty slots kept for reuse: memory the node holds
-    /// (a waiting path's slot is counted as that path's bytes).
-    fn free_bytes(&self) -> u64 {
-        (self.free.len() * std::mem::size_of::<Option<Routed>>()) as u64
+        self.heap.pop().map(|q| (q.arrival, *q.routed))
     }
 }
 
-/// A waiting path's place in the heap: its key and its slot.
+/// A waiting path and its place in the heap.
 struct Queued {
     arrival: f64,
     sample: u64,
-    slot: u32,
+    routed: Box<Routed>,
 }
 
 impl Ord for Queued {
@@ -378,7 +351,7 @@ impl<'a> Node<'a> {
 
     fn hold(&mut self, bytes: usize) {
         self.ray_bytes += bytes as u64;
-        let now = self.report.memory_bytes + self.ray_bytes + self.queue.free_bytes();
+        let now = self.report.memory_bytes + self.ray_bytes;
         self.report.peak_memory_bytes = self.report.peak_memory_bytes.max(now);
     }
 
