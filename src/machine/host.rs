@@ -461,9 +461,11 @@ impl Plan {
         // Each look costs a restriction of the structure: taken in turn,
         // only as far as the hint needs.
         let more_rays = (2 * n + 1) * self.path_bytes;
-        let hulls = self.cells.cell_hulls();
+        // Made once, and only if a look needs a restriction.
+        let hulls = std::cell::OnceCell::new();
+        let hulls = || hulls.get_or_init(|| self.cells.cell_hulls());
         let skeleton = || {
-            let (c, sc) = self.cells.restrict_with(scene, &|_, _| false, &hulls);
+            let (c, sc) = self.cells.restrict_with(scene, &|_, _| false, hulls());
             node::share_bytes(&c, &sc)
         };
         // Where the worst node owns a few super cells (not hundreds), the
@@ -476,7 +478,7 @@ impl Plan {
                         let (c, sc) = self.cells.restrict_with(
                             scene,
                             &|rr, ss| rr as usize == r && ss == s,
-                            &hulls,
+                            hulls(),
                         );
                         node::share_bytes(&c, &sc)
                     })

@@ -63,8 +63,9 @@ fn sampled(n: u32, stride: u32) -> std::iter::StepBy<std::ops::Range<u32>> {
 }
 
 /// The estimated work of every super cell, per region, the owner of
-/// every super cell for `2^d` nodes (`assign`, then for `Balanced` the
-/// `refine` rounds against pre-passes walked under the mapping), and how
+/// every super cell for `2^d` nodes (`assign`; for `Balanced` on more
+/// than one node, the grid cut again by pre-passes walked under the
+/// mapping, `RECUTS`, then `refine`), and how
 /// many times the rays of the last pre-pass walked under the mapping
 /// moved between nodes (0 where none was walked so: one node, or
 /// `EqualArea`): the estimate of the paths the machine will send.

@@ -980,14 +980,16 @@ impl<'a> Node<'a> {
                 }
                 self.host_flushed = Instant::now();
             }
-            // The next envelope starts with room for as much as this one:
-            // grown from empty, one frame of a few dozen bytes took
-            // three reallocations (5% of a d = 1 render's instructions).
-            let n = self.waiting[i].len();
-            let room = n.clamp(ENVELOPE_ROOM.0, ENVELOPE_ROOM.1);
-            let bytes = std::mem::replace(&mut self.waiting[i], Vec::with_capacity(room));
+            let bytes = std::mem::take(&mut self.waiting[i]);
+            let n = bytes.len();
             match self.links.try_send(self.link_of(i), bytes) {
                 Ok(None) => {
+                    // The next envelope starts with room for as much as
+                    // this one: grown from empty, one frame of a few dozen
+                    // bytes took three reallocations (5% of a d = 1
+                    // render's instructions).
+                    let room = n.clamp(ENVELOPE_ROOM.0, ENVELOPE_ROOM.1);
+                    self.waiting[i] = Vec::with_capacity(room);
                     self.release(n);
                     self.carries[i] = false;
                     if i == host {
