@@ -239,6 +239,11 @@ pub struct CellStructure {
     /// cells partition (section 3, "the 3D space bounding the whole
     /// scene"). Rays are followed through the cells only inside it.
     pub scene_box: Aabb,
+    /// Every leaf of every cell's subtree is exposed (`SubtreeLeaf`): the
+    /// scene is a union (or assembly) of its primitives wherever they
+    /// are, so inside any primitive is inside the scene's solid. Shadow
+    /// walks then keep the last surface that stopped them (`walk_shadow`).
+    pub exposed_everywhere: bool,
     pub stats: BuildStats,
 }
 
@@ -405,6 +410,7 @@ impl CellStructure {
             subtrees,
             origin,
             origin_count: tree.nodes.len(),
+            exposed_everywhere: subtree_leaves.iter().all(|l| l.exposed),
             leaf_span,
             subtree_leaves,
             scene_box,
@@ -491,8 +497,10 @@ impl CellStructure {
 /// (`CellTracer::in_cell`): its node in `CellStructure::subtrees`, its
 /// primitive, whether it is the subtree's result when it is the only leaf
 /// with anything along the ray (every operator above it is a union or an
-/// assembly, or a difference of which it is in the first operand), and its
-/// culling box (`CsgTree::cull_bounds` of `node`).
+/// assembly, or a difference of which it is in the first operand), whether
+/// it is exposed (every operator above it is a union or an assembly: inside
+/// it is inside the subtree's solid, and so, within the cell, inside the
+/// scene's), and its culling box (`CsgTree::cull_bounds` of `node`).
 ///
 /// The box is a copy kept beside the leaf so that the first look reads one
 /// contiguous list: most leaves a ray meets in a cell are culled by their
@@ -505,6 +513,7 @@ pub struct SubtreeLeaf {
     pub node: u32,
     pub prim: u32,
     pub lone_is_result: bool,
+    pub exposed: bool,
 }
 
 /// The leaf lists of the subtrees rooted at `roots`.
@@ -520,23 +529,25 @@ fn subtree_leaf_lists(
             continue;
         }
         let start = out.len() as u32;
-        stack.push((NodeId(root), true));
-        while let Some((n, passes)) = stack.pop() {
+        stack.push((NodeId(root), true, true));
+        while let Some((n, passes, exposed)) = stack.pop() {
             match tree.nodes[n.index()] {
                 CsgNode::Leaf(p) => out.push(SubtreeLeaf {
                     cull: tree.cull_bounds[n.index()],
                     node: n.0,
                     prim: p.0,
                     lone_is_result: passes,
+                    exposed,
                 }),
                 CsgNode::Op { op, .. } => {
+                    let joins = matches!(op, Op::Union | Op::Assembly);
                     for (i, c) in tree.children_of(n).iter().enumerate() {
                         let keeps = match op {
                             Op::Union | Op::Assembly => true,
                             Op::Difference => i == 0,
                             Op::Intersection => false,
                         };
-                        stack.push((*c, passes && keeps));
+                        stack.push((*c, passes && keeps, exposed && joins));
                     }
                 }
             }

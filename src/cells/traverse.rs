@@ -611,10 +611,32 @@ pub struct CellTracer<'a> {
     /// When recording for a mapping, the times a ray moved to another
     /// node: the machine's messages of paths between nodes.
     moves: u64,
+    /// Every material is opaque: a shadow ray ends at the first surface it
+    /// crosses, whichever that is (`walk_shadow`).
+    opaque: bool,
+    /// The current walk is a shadow ray's that may stop at the first cell
+    /// where the ray passes through the scene's solid (`walk_shadow`).
+    occluding: bool,
+    /// Per light (at most `SHADOW_CACHE_LIGHTS`), the solid primitive that
+    /// last stopped a shadow ray toward it, when the scene is exposed
+    /// everywhere (`CellStructure::exposed_everywhere`) and opaque; empty
+    /// otherwise. Haines and Greenberg's shadow cache: neighbouring shadow
+    /// rays are mostly stopped by the same object.
+    blockers: Vec<Option<u32>>,
+    /// The node whose cache the current shadow walk asks and fills: 0, or,
+    /// when recording for a mapping, the node the ray is on (as each node
+    /// of the machine keeps its own cache), with `blockers` holding one
+    /// cache per node.
+    cache_node: usize,
 }
+
+/// Lights up to which `CellTracer` keeps a shadow cache: finding a shadow
+/// ray's light is a scan of the lights.
+const SHADOW_CACHE_LIGHTS: usize = 16;
 
 impl<'a> CellTracer<'a> {
     pub fn new(cs: &'a CellStructure, scene: &'a Scene) -> Self {
+        let opaque = scene.materials.iter().all(|m| m.transmit == 0.0);
         CellTracer {
             cs,
             scene,
@@ -632,6 +654,17 @@ impl<'a> CellTracer<'a> {
             profile: None,
             owners: None,
             moves: 0,
+            opaque,
+            occluding: false,
+            blockers: if opaque
+                && cs.exposed_everywhere
+                && scene.lights.len() <= SHADOW_CACHE_LIGHTS
+            {
+                vec![None; scene.lights.len()]
+            } else {
+                Vec::new()
+            },
+            cache_node: 0,
         }
     }
 
@@ -669,6 +702,8 @@ impl<'a> CellTracer<'a> {
         let [a, b] = cs.leaf_span[subtree as usize];
         let mut lone: Option<&SubtreeLeaf> = None;
         let mut several = false;
+        // A shadow walk's stop (`walk_shadow`).
+        let mut blocked = None;
         // Counted in locals and added once: the intersection call in the
         // loop would otherwise make every count a load and a store.
         let (mut looked, mut met, mut tests, mut culled) = (0u64, 0u64, 0u64, 0u64);
@@ -688,6 +723,12 @@ impl<'a> CellTracer<'a> {
                 *mb = Mailbox::missed(id);
             }
             if mb.hi >= t_lo && mb.lo <= t_end {
+                if self.occluding && l.exposed {
+                    blocked = passes_through(&all_hits[p], PrimId(l.prim), t_lo, t_end);
+                    if blocked.is_some() {
+                        break;
+                    }
+                }
                 if lone.is_some() {
                     several = true;
                     break;
@@ -699,6 +740,9 @@ impl<'a> CellTracer<'a> {
         self.eval_counts.nodes_culled += culled;
         counters.mailbox_hits += met;
         counters.intersection_tests += tests;
+        if blocked.is_some() {
+            return blocked;
+        }
         if !several {
             let l = lone.filter(|l| l.lone_is_result)?;
             let p = l.prim as usize;
@@ -792,6 +836,26 @@ fn window(hits: &PrimHits, t_lo: f64, t_end: f64) -> PrimHits {
     }
 }
 
+/// For a shadow walk (`CellTracer::walk_shadow`): a hit standing for the
+/// ray's passing through an exposed solid leaf inside the window `[t_lo,
+/// t_end]`, over more than rounding can blur (a relative 1e-9 of the
+/// window's ends), so the ray surely has points inside the scene's solid
+/// there.
+#[inline]
+fn passes_through(hits: &PrimHits, p: PrimId, t_lo: f64, t_end: f64) -> Option<Hit> {
+    let PrimHits::Solid { enter, exit } = hits else {
+        return None;
+    };
+    let (a, b) = (max(enter.t, t_lo), min(exit.t, t_end));
+    let pad = (t_lo.abs() + t_end.abs()) * 1e-9;
+    (b - a > pad).then_some(Hit {
+        t: a,
+        prim: p,
+        part: enter.part,
+        flip: false,
+    })
+}
+
 /// The first of one primitive's crossings with `t_lo < t < t_end`: what
 /// `SpanList::first_between` gives on the list `push_prim_hits` makes.
 #[inline]
@@ -880,11 +944,13 @@ impl<'a> CellTracer<'a> {
     }
 
     /// Bytes a tracer over `cs` and `scene` keeps: a mailbox and the
-    /// crossings per primitive, an operator mailbox per scene node.
+    /// crossings per primitive, an operator mailbox per scene node, and a
+    /// shadow cache entry per light.
     pub fn bytes_for(cs: &CellStructure, scene: &Scene) -> usize {
         use std::mem::size_of;
         scene.primitives.len() * (size_of::<Mailbox>() + size_of::<PrimHits>())
             + cs.origin_count * (size_of::<u64>() + size_of::<bool>())
+            + scene.lights.len() * size_of::<Option<u32>>()
     }
 
     /// Starts recording, per super cell of each region, the work done in
@@ -906,6 +972,15 @@ impl<'a> CellTracer<'a> {
     /// node that owns nothing holds it (`restrict`), which has every hull.
     pub fn record_work_for(&mut self, owner: [Vec<u16>; 2], skeleton: &'a CellStructure) {
         self.record_work();
+        if !self.blockers.is_empty() {
+            let nodes = owner
+                .iter()
+                .flatten()
+                .map(|&o| o as usize + 1)
+                .max()
+                .unwrap_or(1);
+            self.blockers = vec![None; self.scene.lights.len() * nodes];
+        }
         self.owners = Some((Box::new(owner), skeleton));
     }
 
@@ -945,6 +1020,81 @@ pub enum Walk {
 }
 
 impl CellTracer<'_> {
+    /// `walk` for a shadow ray: whether it meets a surface before `t_max`
+    /// (its light), as `Walk::Hit` of some surface it crosses, not always
+    /// the nearest. The nearest is what a shadow ray needs only to be
+    /// attenuated by glass; with every material opaque, any surface stops
+    /// it. So the walk stops at the first cell where the ray passes
+    /// through an exposed leaf (`SubtreeLeaf::exposed`) of the cell's
+    /// subtree, which may lie before the cell of the nearest surface, and
+    /// saves the evaluation too.
+    ///
+    /// Why that is exact: inside an exposed leaf within the cell is inside
+    /// the cell's subtree's solid, which within the cell is the scene's
+    /// (Algorithm 3 keeps whatever matters there). The light is outside
+    /// the scene's box, so the ray is outside the solid at `t_max`: between
+    /// the two it crosses the solid's boundary, which is the surface the
+    /// walk of `walk` would find (or one before it). When the light is
+    /// inside the scene's box, or some material lets light through, this
+    /// is `walk`.
+    pub fn walk_shadow(
+        &mut self,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        from: Option<WalkPoint>,
+    ) -> Walk {
+        let end = ray.at(t_max);
+        self.occluding =
+            self.opaque && t_max.is_finite() && !self.cs.scene_box.inflated(1e-6).contains(end);
+        if !self.occluding {
+            return self.walk(ray, t_min, t_max, from);
+        }
+        let slot = self.light_slot(end);
+        let walk = self.walk(ray, t_min, t_max, from);
+        self.occluding = false;
+        if let (Some(i), Walk::Hit(h)) = (slot, &walk)
+            && self.scene.primitives[h.prim.index()].is_solid()
+        {
+            let lights = self.scene.lights.len();
+            self.blockers[self.cache_node * lights + i] = Some(h.prim.0);
+        }
+        walk
+    }
+
+    /// The shadow cache's slot for a shadow ray ending at `end`: its
+    /// light's (the nearest to `end`, which is the light's position up to
+    /// rounding), if the tracer keeps a cache.
+    fn light_slot(&self, end: Vec3) -> Option<usize> {
+        if !self.occluding {
+            return None;
+        }
+        if self.blockers.is_empty() {
+            return None;
+        }
+        self.scene
+            .lights
+            .iter()
+            .map(|l| (l.position - end).length_squared())
+            .enumerate()
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(i, _)| i)
+    }
+
+    /// The shadow cache's answer for a shadow walk's ray: a hit if it
+    /// passes through the primitive that stopped the last shadow ray
+    /// toward its light. In a scene exposed everywhere that is passing
+    /// through the scene's solid, wherever it is (the argument of
+    /// `walk_shadow`, in whichever cell the ray is inside the primitive).
+    fn cached_blocker(&mut self, ray: &Ray, t_min: f64, t_max: f64) -> Option<Hit> {
+        let lights = self.scene.lights.len();
+        let i = self.light_slot(ray.at(t_max))?;
+        let p = self.blockers[self.cache_node * lights + i]?;
+        self.counters.intersection_tests += 1;
+        let hits = self.scene.primitives[p as usize].intersect(ray);
+        passes_through(&hits, PrimId(p), t_min, t_max)
+    }
+
     /// The walk of section 7 for the boundaries with `t_min < t < t_max`,
     /// from the ray's start (`from` = None) or resumed at a cell another
     /// node stopped at. On a whole structure it never returns `Remote`, and
@@ -976,6 +1126,10 @@ impl CellTracer<'_> {
         if cam.d.z > 0.0 {
             order.swap(0, 1);
         }
+        // The shadow cache is asked where a shadow ray starts, on the node
+        // that made it (so the pre-pass books the test where the machine
+        // does it), not again where its walk resumes.
+        let mut ask_cache = self.occluding && from.is_none() && !self.blockers.is_empty();
         let mut from = from;
         // Recording for a mapping: the node the ray is on.
         let mut on = None;
@@ -1003,6 +1157,19 @@ impl CellTracer<'_> {
                 }
             };
             self.hint[slot] = s;
+            if ask_cache {
+                ask_cache = false;
+                if let Some((owners, _)) = &self.owners {
+                    self.cache_node = owners[region as usize][s as usize] as usize;
+                }
+                let blocker = self.cached_blocker(ray, t_min, t_max);
+                if let Some(p) = &mut self.profile {
+                    p[region as usize][s as usize] += TEST_WORK;
+                }
+                if let Some(h) = blocker {
+                    return Walk::Hit(h);
+                }
+            }
             // The walk is monotone in every screen axis and depth, so it
             // ends; the guard only turns a bug into a miss, never a hang.
             let mut guard = rc.cell_count() + 2;
@@ -1041,6 +1208,10 @@ impl CellTracer<'_> {
                 };
                 if let Some(h) = hit {
                     self.hint[slot] = s;
+                    if let Some(o) = on {
+                        // The node that found it fills its cache.
+                        self.cache_node = o.node as usize;
+                    }
                     return Walk::Hit(h);
                 }
                 // Past the end of the ray's part in the region (or NaN).
@@ -1161,6 +1332,13 @@ impl Tracer for CellTracer<'_> {
             Walk::Miss => None,
             // A restricted structure is walked with `walk`, never here.
             Walk::Remote(_) => None,
+        }
+    }
+
+    fn shadow(&mut self, ray: &Ray, t_min: f64, t_max: f64) -> Option<Hit> {
+        match self.walk_shadow(ray, t_min, t_max, None) {
+            Walk::Hit(h) => Some(h),
+            Walk::Miss | Walk::Remote(_) => None,
         }
     }
 

@@ -722,7 +722,13 @@ impl<'a> Node<'a> {
             self.report.rays_processed += 1;
             let shadow = a.job.kind == RayKind::Shadow;
             let from = a.at.take();
-            let finished_with = match self.tracer.walk(&a.job.ray, a.t_min, a.job.t_max, from) {
+            let walk = if shadow {
+                self.tracer
+                    .walk_shadow(&a.job.ray, a.t_min, a.job.t_max, from)
+            } else {
+                self.tracer.walk(&a.job.ray, a.t_min, a.job.t_max, from)
+            };
+            let finished_with = match walk {
                 Walk::Remote(p) => {
                     a.at = Some(p);
                     let dest = self.share.owner[p.region as usize][p.super_cell as usize];

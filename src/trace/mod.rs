@@ -112,6 +112,15 @@ pub trait Tracer {
     /// The nearest boundary with `t_min < t < t_max`.
     fn nearest(&mut self, ray: &Ray, t_min: f64, t_max: f64) -> Option<Hit>;
 
+    /// For a shadow ray toward a light at `t_max`: a boundary with `t_min <
+    /// t < t_max` whenever there is one, the nearest when the shadow ray
+    /// may need it (a material that transmits light). An accelerator may
+    /// answer with another surface when every surface stops the ray; the
+    /// reference answers `nearest`.
+    fn shadow(&mut self, ray: &Ray, t_min: f64, t_max: f64) -> Option<Hit> {
+        self.nearest(ray, t_min, t_max)
+    }
+
     /// Work counters so far.
     fn counters(&self) -> crate::render::TraceCounters {
         Default::default()
@@ -308,7 +317,7 @@ impl<'a> Shader<'a> {
             if job.kind == RayKind::Shadow {
                 let mut t = 0.0;
                 let delivered = loop {
-                    match tracer.nearest(&job.ray, t, job.t_max) {
+                    match tracer.shadow(&job.ray, t, job.t_max) {
                         None => break true,
                         Some(h) => {
                             if !self.shadow_crossing(&mut job, &h) {

@@ -410,6 +410,91 @@ fn random_csg_scenes_render_identically_with_cells_and_roth() {
     );
 }
 
+/// Opaque random scenes, where shadow rays take the cells' shortcuts
+/// (`CellTracer::walk_shadow`): a shadow walk stops at the first cell where
+/// the ray passes through an exposed solid, and in scenes that are unions
+/// of their primitives (one operator level: the objects list) it first
+/// asks the shadow cache. 150 scenes of 1 to 60 primitives, lights inside
+/// and outside the scene's box, render bit-identically with Roth; and the
+/// test does exercise the shortcuts: in union scenes they save
+/// intersection tests against the same cells without them.
+#[test]
+fn opaque_random_scenes_render_identically_with_the_shadow_shortcuts() {
+    let mut failures = Vec::new();
+    let (mut unions, mut cached) = (0, 0);
+    for seed in seeds(0..150) {
+        let opts = RandomCsgOptions {
+            max_tree_depth: 1 + (seed % 4) as u32,
+            mirrors_and_glass: false,
+            lights: Some(1 + (seed % 3) as u32),
+            camera: [
+                CameraPlacement::Outside,
+                CameraPlacement::Inside,
+                CameraPlacement::BehindEye,
+            ][(seed % 3) as usize],
+            ..RandomCsgOptions::default()
+        };
+        let primitives = 1 + (seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32) as usize % 60;
+        let model = random_csg(seed, primitives, &opts);
+        let ron = scene_to_string(&model, SceneSyntax::Ron).unwrap();
+        let scene = load(&ron);
+        let r = options(64, 48);
+        let (roth, _) = render_roth(&scene, &r, &|_| {});
+        for choice in CHOICES {
+            let opts = CellOptions {
+                choice,
+                ..Default::default()
+            };
+            let (film, stats, cs) = render_cells(&scene, &r, opts, &|_| {});
+            if roth.sums() != film.sums() {
+                eprintln!(
+                    "seed {seed}, {primitives} primitives: cells ({choice:?}) and Roth differ\n{}\n{ron}",
+                    differences(&scene, &r, choice)
+                );
+                failures.push((seed, choice));
+            }
+            if cs.exposed_everywhere && choice == SegmentChoice::Sampled {
+                unions += 1;
+                // The same cells, every shadow ray walked to its nearest
+                // surface.
+                let plain = render_with(
+                    &scene,
+                    &r,
+                    || NoShortcuts(CellTracer::new(&cs, &scene)),
+                    |j| CellTracer::primary_is_background(&cs, &j.ray),
+                    &|_| {},
+                )
+                .1;
+                if stats.counters.intersection_tests < plain.counters.intersection_tests {
+                    cached += 1;
+                }
+            }
+        }
+    }
+    assert!(
+        failures.is_empty(),
+        "seeds where cells and Roth differ: {failures:?}"
+    );
+    assert!(
+        unions >= 30 && cached >= 10,
+        "{unions} union scenes, {cached} with fewer tests by the shadow shortcuts"
+    );
+}
+
+/// The cells without the shadow shortcuts: every shadow ray walks to its
+/// nearest surface.
+struct NoShortcuts<'a>(CellTracer<'a>);
+
+impl Tracer for NoShortcuts<'_> {
+    fn nearest(&mut self, ray: &Ray, t_min: f64, t_max: f64) -> Option<Hit> {
+        self.0.nearest(ray, t_min, t_max)
+    }
+
+    fn counters(&self) -> hypercast::render::TraceCounters {
+        self.0.counters
+    }
+}
+
 /// The seeds of the random tests: `default`, or the range `a..b` given by
 /// `HYPERCAST_SEEDS` for longer hunts (stress counts scale by configuration).
 fn seeds(default: std::ops::Range<u64>) -> std::ops::Range<u64> {

@@ -117,6 +117,12 @@ fn a_scene_too_large_for_one_node_is_refused_then_fits_on_32() {
 /// cells its walks enter and its intersection tests. (This is what lets
 /// the balanced mapping balance: an earlier pre-pass took every change of
 /// owner for a crossing and its loads did not correlate with the nodes'.)
+/// Within 8%, not exactly: each node's shadow cache holds what stopped the
+/// last shadow rays that node traced, and the order in which rays reach a
+/// node is the machine's (its virtual arrivals, so its host's timing),
+/// which one tracer walking pixel after pixel only approaches. Within 1%
+/// without the cache; with it, up to 5.2% apart over four runs, where a
+/// node's own count varied by 4% from run to run.
 #[test]
 fn the_full_pre_pass_predicts_every_nodes_work() {
     use hypercast::cells::{CELL_WORK, TEST_WORK};
@@ -132,7 +138,7 @@ fn the_full_pre_pass_predicts_every_nodes_work() {
         let counted = (CELL_WORK * n.cells_visited + TEST_WORK * n.intersection_tests) as f64;
         let p = predicted[n.node as usize];
         assert!(
-            (p - counted).abs() <= 0.01 * counted + 1e-4 * total,
+            (p - counted).abs() <= 0.08 * counted + 1e-4 * total,
             "node {}: predicted {p}, counted {counted}; {predicted:?}",
             n.node
         );
