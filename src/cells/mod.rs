@@ -239,11 +239,8 @@ pub struct CellStructure {
     /// cells partition (section 3, "the 3D space bounding the whole
     /// scene"). Rays are followed through the cells only inside it.
     pub scene_box: Aabb,
-    /// Every leaf of every cell's subtree is exposed (`SubtreeLeaf`): the
-    /// scene is a union (or assembly) of its primitives wherever they
-    /// are, so inside any primitive is inside the scene's solid. Shadow
-    /// walks then keep the last surface that stopped them (`walk_shadow`).
-    pub exposed_everywhere: bool,
+    /// What shadow walks may take short (`CellTracer::walk_shadow`).
+    pub shadows: ShadowFacts,
     pub stats: BuildStats,
 }
 
@@ -410,7 +407,7 @@ impl CellStructure {
             subtrees,
             origin,
             origin_count: tree.nodes.len(),
-            exposed_everywhere: subtree_leaves.iter().all(|l| l.exposed),
+            shadows: ShadowFacts::of(scene, &minimal),
             leaf_span,
             subtree_leaves,
             scene_box,
@@ -467,7 +464,7 @@ impl CellStructure {
     /// their pointers and primitive lists, BSP nodes and subtree arena.
     pub fn bytes(&self) -> usize {
         use std::mem::size_of;
-        let mut b = size_of::<Self>();
+        let mut b = size_of::<Self>() + self.shadows.bytes();
         for r in &self.regions {
             b += r.subtree.len() * 4
                 + r.first_cell.len() * 4
@@ -490,6 +487,216 @@ impl CellStructure {
             + self.leaf_span.len() * 8
             + self.subtree_leaves.len() * size_of::<SubtreeLeaf>();
         b
+    }
+}
+
+/// What a shadow walk may assume of the whole scene (`CellTracer::
+/// walk_shadow`), found once from the scene's tree and kept with every
+/// share, since a node sees only its own primitives.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ShadowFacts {
+    /// Per primitive of the structure's scene, a bit: every operator above
+    /// it in the scene's tree is a union or an assembly, so inside it is
+    /// inside the scene's solid wherever it is (the shadow cache keeps only
+    /// these).
+    pub exposed: Vec<u64>,
+    /// Per light, whether it surely lies outside the scene's solid
+    /// (`outside_the_solid`).
+    pub clear_lights: Vec<bool>,
+    /// The minimal boxes (inflated) of the primitives whose material lets
+    /// light through, or None when there are more than `MAX_GLASS`: a
+    /// shadow ray that meets none of them meets only opaque surfaces.
+    pub glass: Option<Vec<Aabb>>,
+}
+
+/// Transmitting primitives up to which shadow rays are checked against
+/// their boxes (`ShadowFacts::glass`): beyond, every shadow ray walks to
+/// its nearest surface.
+pub const MAX_GLASS: usize = 64;
+
+/// Where a point surely is against a solid: inside, outside, or too near
+/// a surface to say.
+#[derive(Clone, Copy, PartialEq)]
+enum Side {
+    In,
+    Out,
+    Near,
+}
+
+/// Whether `p` surely lies outside the scene's solid: by the tree, three
+/// ways (`Side`), each primitive classified by its crossings with a ray
+/// from `p` (all solid primitives are convex: `p` is inside when the ray
+/// leaves it ahead and entered behind), and every primitive whose minimal
+/// box (inflated) does not hold `p` outside, as Algorithm 1 lets it be
+/// wherever it cannot change the solid. Within a millionth of the scene's
+/// size of a surface, a primitive is `Near` and decides nothing.
+fn outside_the_solid(scene: &Scene, minimal: &[Aabb], p: crate::geom::Vec3) -> bool {
+    use crate::csg::PrimHits;
+    let tree = &scene.tree;
+    let Some(root) = tree.root else {
+        return true;
+    };
+    let all = minimal.get(root.index()).copied().unwrap_or(Aabb::EMPTY);
+    let size = (all.max - all.min).max_element();
+    if !size.is_finite() || size <= 0.0 {
+        return !all.inflated(1e-9).contains(p);
+    }
+    // An arbitrary direction, off the axes, of the scene's size: `t` is
+    // then a fraction of it.
+    let ray = crate::geom::Ray::new(
+        p,
+        crate::geom::Vec3::new(0.8017, 0.4631, 0.3779).normalize() * size,
+    );
+    let m = 1e-6;
+    let mut side = vec![Side::Out; tree.nodes.len()];
+    for (i, n) in tree.nodes.iter().enumerate() {
+        side[i] = match *n {
+            CsgNode::Leaf(q) => {
+                if !minimal[i].inflated(1e-9).contains(p) {
+                    Side::Out
+                } else {
+                    match scene.primitives[q.index()].intersect(&ray) {
+                        PrimHits::Miss => Side::Out,
+                        PrimHits::Solid { enter, exit } => {
+                            if enter.t < -m && exit.t > m {
+                                Side::In
+                            } else if enter.t > m || exit.t < -m {
+                                Side::Out
+                            } else {
+                                Side::Near
+                            }
+                        }
+                        PrimHits::Sheet { hits, count } => {
+                            if hits[..count as usize].iter().any(|c| c.t.abs() <= m) {
+                                Side::Near
+                            } else {
+                                Side::Out
+                            }
+                        }
+                    }
+                }
+            }
+            CsgNode::Op { op, .. } => {
+                let kids = tree.children_of(NodeId(i as u32));
+                let of = |c: &NodeId| side[c.index()];
+                let any = |s: Side| kids.iter().any(|c| of(c) == s);
+                match op {
+                    Op::Union | Op::Assembly => {
+                        if any(Side::In) {
+                            Side::In
+                        } else if any(Side::Near) {
+                            Side::Near
+                        } else {
+                            Side::Out
+                        }
+                    }
+                    Op::Intersection => {
+                        if any(Side::Out) || kids.is_empty() {
+                            Side::Out
+                        } else if any(Side::Near) {
+                            Side::Near
+                        } else {
+                            Side::In
+                        }
+                    }
+                    Op::Difference => {
+                        let (first, rest) = kids
+                            .split_first()
+                            .map_or((Side::Out, &[][..]), |(f, r)| (of(f), r));
+                        let rest_in = rest.iter().any(|c| of(c) == Side::In);
+                        let rest_near = rest.iter().any(|c| of(c) == Side::Near);
+                        if first == Side::Out || rest_in {
+                            Side::Out
+                        } else if first == Side::Near || rest_near {
+                            Side::Near
+                        } else {
+                            Side::In
+                        }
+                    }
+                }
+            }
+        };
+    }
+    side[root.index()] == Side::Out
+}
+
+impl ShadowFacts {
+    fn of(scene: &Scene, minimal: &[Aabb]) -> ShadowFacts {
+        let tree = &scene.tree;
+        // Top-down over the children-before-parents arena: from the root,
+        // through unions and assemblies only.
+        let mut open = vec![false; tree.nodes.len()];
+        if let Some(r) = tree.root {
+            open[r.index()] = true;
+        }
+        let mut exposed = vec![0u64; scene.primitives.len().div_ceil(64)];
+        let mut boxes = Vec::new();
+        for i in (0..tree.nodes.len()).rev() {
+            let b = minimal[i].inflated(1e-9);
+            match tree.nodes[i] {
+                CsgNode::Leaf(p) => {
+                    if open[i] {
+                        exposed[p.index() / 64] |= 1 << (p.index() % 64);
+                    }
+                    if !b.is_empty() {
+                        let m = scene.material(scene.primitives[p.index()].material);
+                        boxes.push((b, m.transmit > 0.0));
+                    }
+                }
+                CsgNode::Op { op, .. } => {
+                    if open[i] && matches!(op, Op::Union | Op::Assembly) {
+                        for c in tree.children_of(NodeId(i as u32)) {
+                            open[c.index()] = true;
+                        }
+                    }
+                }
+            }
+        }
+        let clear_lights = scene
+            .lights
+            .iter()
+            .map(|l| outside_the_solid(scene, minimal, l.position))
+            .collect();
+        let glass: Vec<Aabb> = boxes.iter().filter(|g| g.1).map(|g| g.0).collect();
+        ShadowFacts {
+            exposed,
+            clear_lights,
+            glass: (glass.len() <= MAX_GLASS).then_some(glass),
+        }
+    }
+
+    /// Whether primitive `p` of the structure's scene is exposed.
+    pub fn is_exposed(&self, p: u32) -> bool {
+        self.exposed
+            .get(p as usize / 64)
+            .is_some_and(|w| w >> (p % 64) & 1 == 1)
+    }
+
+    /// The facts for a share whose primitives are the scene's `kept`
+    /// (global numbers, in their local order).
+    pub fn restricted(&self, kept: impl Iterator<Item = u32>) -> ShadowFacts {
+        let mut exposed = Vec::new();
+        for (k, p) in kept.enumerate() {
+            if k % 64 == 0 {
+                exposed.push(0);
+            }
+            if self.is_exposed(p) {
+                exposed[k / 64] |= 1 << (k % 64);
+            }
+        }
+        ShadowFacts {
+            exposed,
+            ..self.clone()
+        }
+    }
+
+    fn bytes(&self) -> usize {
+        self.exposed.len() * 8
+            + self.clear_lights.len()
+            + self
+                .glass
+                .as_ref()
+                .map_or(0, |g| g.len() * std::mem::size_of::<Aabb>())
     }
 }
 

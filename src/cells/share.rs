@@ -153,7 +153,7 @@ impl CellStructure {
             leaf_span,
             subtree_leaves,
             scene_box: self.scene_box,
-            exposed_everywhere: self.exposed_everywhere,
+            shadows: self.shadows.restricted(prims.keys().copied()),
             stats: self.stats.clone(),
         };
         let local = Scene {

@@ -611,17 +611,15 @@ pub struct CellTracer<'a> {
     /// When recording for a mapping, the times a ray moved to another
     /// node: the machine's messages of paths between nodes.
     moves: u64,
-    /// Every material is opaque: a shadow ray ends at the first surface it
-    /// crosses, whichever that is (`walk_shadow`).
-    opaque: bool,
     /// The current walk is a shadow ray's that may stop at the first cell
     /// where the ray passes through the scene's solid (`walk_shadow`).
     occluding: bool,
-    /// Per light (at most `SHADOW_CACHE_LIGHTS`), the solid primitive that
-    /// last stopped a shadow ray toward it, when the scene is exposed
-    /// everywhere (`CellStructure::exposed_everywhere`) and opaque; empty
-    /// otherwise. Haines and Greenberg's shadow cache: neighbouring shadow
-    /// rays are mostly stopped by the same object.
+    /// The light of the current shadow walk, when `occluding`.
+    light: usize,
+    /// Per light (at most `SHADOW_CACHE_LIGHTS`; empty beyond), the exposed
+    /// solid primitive (`ShadowFacts::exposed`) that last stopped a shadow
+    /// ray toward it: Haines and Greenberg's shadow cache, as neighbouring
+    /// shadow rays are mostly stopped by the same object.
     blockers: Vec<Option<u32>>,
     /// The node whose cache the current shadow walk asks and fills: 0, or,
     /// when recording for a mapping, the node the ray is on (as each node
@@ -636,7 +634,6 @@ const SHADOW_CACHE_LIGHTS: usize = 16;
 
 impl<'a> CellTracer<'a> {
     pub fn new(cs: &'a CellStructure, scene: &'a Scene) -> Self {
-        let opaque = scene.materials.iter().all(|m| m.transmit == 0.0);
         CellTracer {
             cs,
             scene,
@@ -654,12 +651,9 @@ impl<'a> CellTracer<'a> {
             profile: None,
             owners: None,
             moves: 0,
-            opaque,
             occluding: false,
-            blockers: if opaque
-                && cs.exposed_everywhere
-                && scene.lights.len() <= SHADOW_CACHE_LIGHTS
-            {
+            light: 0,
+            blockers: if scene.lights.len() <= SHADOW_CACHE_LIGHTS {
                 vec![None; scene.lights.len()]
             } else {
                 Vec::new()
@@ -1023,20 +1017,26 @@ impl CellTracer<'_> {
     /// `walk` for a shadow ray: whether it meets a surface before `t_max`
     /// (its light), as `Walk::Hit` of some surface it crosses, not always
     /// the nearest. The nearest is what a shadow ray needs only to be
-    /// attenuated by glass; with every material opaque, any surface stops
-    /// it. So the walk stops at the first cell where the ray passes
-    /// through an exposed leaf (`SubtreeLeaf::exposed`) of the cell's
-    /// subtree, which may lie before the cell of the nearest surface, and
-    /// saves the evaluation too.
+    /// attenuated by glass; where the ray meets no material that lets
+    /// light through, any surface stops it. So the walk stops at the first
+    /// cell where the ray passes through an exposed leaf
+    /// (`SubtreeLeaf::exposed`) of the cell's subtree, which may lie before
+    /// the cell of the nearest surface, and saves the evaluation too; and
+    /// before walking, it tries the primitive that stopped the last shadow
+    /// ray toward the same light (the shadow cache), if that is exposed in
+    /// the scene's tree (`ShadowFacts::exposed`).
     ///
     /// Why that is exact: inside an exposed leaf within the cell is inside
     /// the cell's subtree's solid, which within the cell is the scene's
-    /// (Algorithm 3 keeps whatever matters there). The light is outside
-    /// the scene's box, so the ray is outside the solid at `t_max`: between
-    /// the two it crosses the solid's boundary, which is the surface the
-    /// walk of `walk` would find (or one before it). When the light is
-    /// inside the scene's box, or some material lets light through, this
-    /// is `walk`.
+    /// (Algorithm 3 keeps whatever matters there); inside a primitive
+    /// exposed in the scene's tree is inside the scene's solid anywhere.
+    /// The light lies outside every primitive's minimal box, so the ray is
+    /// outside the solid at `t_max`: between the two it crosses the solid's
+    /// boundary, which the walk of `walk` would find (or one before it), and
+    /// every surface the ray meets is opaque, since it meets no box of a
+    /// primitive that transmits. Otherwise (a light inside a box, a glass
+    /// box on the way, more than `MAX_GLASS` such primitives) this is
+    /// `walk`.
     pub fn walk_shadow(
         &mut self,
         ray: &Ray,
@@ -1044,52 +1044,68 @@ impl CellTracer<'_> {
         t_max: f64,
         from: Option<WalkPoint>,
     ) -> Walk {
-        let end = ray.at(t_max);
-        self.occluding =
-            self.opaque && t_max.is_finite() && !self.cs.scene_box.inflated(1e-6).contains(end);
-        if !self.occluding {
+        let Some(light) = self.shadow_light(ray, t_min, t_max) else {
             return self.walk(ray, t_min, t_max, from);
+        };
+        self.occluding = true;
+        self.light = light;
+        if from.is_none()
+            && self.profile.is_none()
+            && let Some(h) = self.cached_blocker(ray, t_min, t_max)
+        {
+            self.occluding = false;
+            return Walk::Hit(h);
         }
-        let slot = self.light_slot(end);
         let walk = self.walk(ray, t_min, t_max, from);
         self.occluding = false;
-        if let (Some(i), Walk::Hit(h)) = (slot, &walk)
-            && self.scene.primitives[h.prim.index()].is_solid()
+        // A stop by a primitive the cache may not keep empties its entry:
+        // the rays after this one are likelier stopped by the same.
+        if let Walk::Hit(h) = &walk
+            && !self.blockers.is_empty()
         {
+            let keep = self.cs.shadows.is_exposed(h.prim.0)
+                && self.scene.primitives[h.prim.index()].is_solid();
             let lights = self.scene.lights.len();
-            self.blockers[self.cache_node * lights + i] = Some(h.prim.0);
+            self.blockers[self.cache_node * lights + light] = keep.then_some(h.prim.0);
         }
         walk
     }
 
-    /// The shadow cache's slot for a shadow ray ending at `end`: its
-    /// light's (the nearest to `end`, which is the light's position up to
-    /// rounding), if the tracer keeps a cache.
-    fn light_slot(&self, end: Vec3) -> Option<usize> {
-        if !self.occluding {
+    /// The light a shadow ray over `(t_min, t_max)` goes to, when
+    /// `walk_shadow` may take it short: the ray ends at that light (up to
+    /// the rounding of its direction, which is the light's position less
+    /// the ray's origin), the light lies outside every primitive's minimal
+    /// box, and the ray meets no box of a primitive that lets light
+    /// through.
+    fn shadow_light(&self, ray: &Ray, t_min: f64, t_max: f64) -> Option<usize> {
+        let facts = &self.cs.shadows;
+        let glass = facts.glass.as_ref()?;
+        if !t_max.is_finite() {
             return None;
         }
-        if self.blockers.is_empty() {
-            return None;
-        }
-        self.scene
+        let end = ray.at(t_max);
+        let (i, d2) = self
+            .scene
             .lights
             .iter()
             .map(|l| (l.position - end).length_squared())
             .enumerate()
-            .min_by(|a, b| a.1.total_cmp(&b.1))
-            .map(|(i, _)| i)
+            .min_by(|a, b| a.1.total_cmp(&b.1))?;
+        let at = self.scene.lights[i].position;
+        let tol = 1e-9 * (at.abs().max_element() + ray.origin.abs().max_element());
+        let meets = |g: &Aabb| {
+            g.ray_interval(ray)
+                .is_some_and(|(a, b)| b >= t_min && a <= t_max)
+        };
+        (d2 <= tol * tol && facts.clear_lights[i] && !glass.iter().any(meets)).then_some(i)
     }
 
     /// The shadow cache's answer for a shadow walk's ray: a hit if it
     /// passes through the primitive that stopped the last shadow ray
-    /// toward its light. In a scene exposed everywhere that is passing
-    /// through the scene's solid, wherever it is (the argument of
-    /// `walk_shadow`, in whichever cell the ray is inside the primitive).
+    /// toward its light (`walk_shadow`).
     fn cached_blocker(&mut self, ray: &Ray, t_min: f64, t_max: f64) -> Option<Hit> {
         let lights = self.scene.lights.len();
-        let i = self.light_slot(ray.at(t_max))?;
-        let p = self.blockers[self.cache_node * lights + i]?;
+        let p = (*self.blockers.get(self.cache_node * lights + self.light)?)?;
         self.counters.intersection_tests += 1;
         let hits = self.scene.primitives[p as usize].intersect(ray);
         passes_through(&hits, PrimId(p), t_min, t_max)
@@ -1127,13 +1143,15 @@ impl CellTracer<'_> {
             order.swap(0, 1);
         }
         // The shadow cache is asked where a shadow ray starts, on the node
-        // that made it (so the pre-pass books the test where the machine
-        // does it), not again where its walk resumes.
-        let mut ask_cache = self.occluding && from.is_none() && !self.blockers.is_empty();
+        // that made it, not again where its walk resumes. A plain walk asks
+        // in `walk_shadow`; a recording one here, to book the test to the
+        // super cell, so the node, where the ray starts.
+        let recording = self.profile.is_some();
+        let mut ask_cache =
+            recording && self.occluding && from.is_none() && !self.blockers.is_empty();
         let mut from = from;
         // Recording for a mapping: the node the ray is on.
         let mut on = None;
-        let recording = self.profile.is_some();
         let first = from.map_or(0, |p| usize::from(order[0] != p.region));
         for &region in &order[first..] {
             let (lo, hi) = cam.region_interval(region);
@@ -1159,14 +1177,7 @@ impl CellTracer<'_> {
             self.hint[slot] = s;
             if ask_cache {
                 ask_cache = false;
-                if let Some((owners, _)) = &self.owners {
-                    self.cache_node = owners[region as usize][s as usize] as usize;
-                }
-                let blocker = self.cached_blocker(ray, t_min, t_max);
-                if let Some(p) = &mut self.profile {
-                    p[region as usize][s as usize] += TEST_WORK;
-                }
-                if let Some(h) = blocker {
+                if let Some(h) = self.recorded_cache_test(ray, (t_min, t_max), region, s) {
                     return Walk::Hit(h);
                 }
             }
@@ -1261,6 +1272,28 @@ struct OnNode {
 }
 
 impl CellTracer<'_> {
+    /// The shadow cache's test when recording work, where a shadow walk
+    /// starts (super cell `s`): booked to that super cell, with the cache of
+    /// the node that owns it, when recording for a mapping. Out of line: it
+    /// is the pre-pass's, and the machine's walks never take it.
+    #[inline(never)]
+    fn recorded_cache_test(
+        &mut self,
+        ray: &Ray,
+        (t_min, t_max): (f64, f64),
+        region: Region,
+        s: u32,
+    ) -> Option<Hit> {
+        if let Some((owners, _)) = &self.owners {
+            self.cache_node = owners[region as usize][s as usize] as usize;
+        }
+        let blocker = self.cached_blocker(ray, t_min, t_max);
+        if let Some(p) = &mut self.profile {
+            p[region as usize][s as usize] += TEST_WORK;
+        }
+        blocker
+    }
+
     /// The walk's step in cell `k` of super cell `s` when recording work
     /// (`record_work`): the cell's search, as a plain walk does it, and
     /// the work booked to the super cell where the machine does it. When
