@@ -580,25 +580,21 @@ fn outside_the_solid(scene: &Scene, minimal: &[Aabb], p: crate::geom::Vec3) -> b
                 let kids = tree.children_of(NodeId(i as u32));
                 let of = |c: &NodeId| side[c.index()];
                 let any = |s: Side| kids.iter().any(|c| of(c) == s);
+                // A union is inside where any operand is, an intersection
+                // outside where any is; else near where any is near.
+                let settle = |wins: Side, otherwise: Side| {
+                    if any(wins) {
+                        wins
+                    } else if any(Side::Near) {
+                        Side::Near
+                    } else {
+                        otherwise
+                    }
+                };
                 match op {
-                    Op::Union | Op::Assembly => {
-                        if any(Side::In) {
-                            Side::In
-                        } else if any(Side::Near) {
-                            Side::Near
-                        } else {
-                            Side::Out
-                        }
-                    }
-                    Op::Intersection => {
-                        if any(Side::Out) || kids.is_empty() {
-                            Side::Out
-                        } else if any(Side::Near) {
-                            Side::Near
-                        } else {
-                            Side::In
-                        }
-                    }
+                    Op::Union | Op::Assembly => settle(Side::In, Side::Out),
+                    Op::Intersection if kids.is_empty() => Side::Out,
+                    Op::Intersection => settle(Side::Out, Side::In),
                     Op::Difference => {
                         let (first, rest) = kids
                             .split_first()
