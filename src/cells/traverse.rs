@@ -1030,13 +1030,13 @@ impl CellTracer<'_> {
     /// the cell's subtree's solid, which within the cell is the scene's
     /// (Algorithm 3 keeps whatever matters there); inside a primitive
     /// exposed in the scene's tree is inside the scene's solid anywhere.
-    /// The light lies outside every primitive's minimal box, so the ray is
-    /// outside the solid at `t_max`: between the two it crosses the solid's
-    /// boundary, which the walk of `walk` would find (or one before it), and
-    /// every surface the ray meets is opaque, since it meets no box of a
-    /// primitive that transmits. Otherwise (a light inside a box, a glass
-    /// box on the way, more than `MAX_GLASS` such primitives) this is
-    /// `walk`.
+    /// The light lies surely outside the solid (`ShadowFacts::clear_lights`),
+    /// so the ray is outside it at `t_max`: between the two it crosses the
+    /// solid's boundary, which the walk of `walk` would find (or one before
+    /// it), and every surface the ray meets is opaque, since it meets no
+    /// box of a primitive that transmits. Otherwise (a light inside or near
+    /// the solid, a glass box on the way, more than `MAX_GLASS` such
+    /// primitives) this is `walk`.
     pub fn walk_shadow(
         &mut self,
         ray: &Ray,
@@ -1074,9 +1074,8 @@ impl CellTracer<'_> {
     /// The light a shadow ray over `(t_min, t_max)` goes to, when
     /// `walk_shadow` may take it short: the ray ends at that light (up to
     /// the rounding of its direction, which is the light's position less
-    /// the ray's origin), the light lies outside every primitive's minimal
-    /// box, and the ray meets no box of a primitive that lets light
-    /// through.
+    /// the ray's origin), the light lies surely outside the solid, and the
+    /// ray meets no box of a primitive that lets light through.
     fn shadow_light(&self, ray: &Ray, t_min: f64, t_max: f64) -> Option<usize> {
         let facts = &self.cs.shadows;
         let glass = facts.glass.as_ref()?;
