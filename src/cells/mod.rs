@@ -626,17 +626,16 @@ impl ShadowFacts {
             open[r.index()] = true;
         }
         let mut exposed = vec![0u64; scene.primitives.len().div_ceil(64)];
-        let mut boxes = Vec::new();
+        let mut glass = Vec::new();
         for i in (0..tree.nodes.len()).rev() {
-            let b = minimal[i].inflated(1e-9);
             match tree.nodes[i] {
                 CsgNode::Leaf(p) => {
                     if open[i] {
                         exposed[p.index() / 64] |= 1 << (p.index() % 64);
                     }
-                    if !b.is_empty() {
-                        let m = scene.material(scene.primitives[p.index()].material);
-                        boxes.push((b, m.transmit > 0.0));
+                    let m = scene.material(scene.primitives[p.index()].material);
+                    if m.transmit > 0.0 && !minimal[i].is_empty() {
+                        glass.push(minimal[i].inflated(1e-9));
                     }
                 }
                 CsgNode::Op { op, .. } => {
@@ -653,7 +652,6 @@ impl ShadowFacts {
             .iter()
             .map(|l| outside_the_solid(scene, minimal, l.position))
             .collect();
-        let glass: Vec<Aabb> = boxes.iter().filter(|g| g.1).map(|g| g.0).collect();
         ShadowFacts {
             exposed,
             clear_lights,
