@@ -154,6 +154,7 @@ impl CellStructure {
             subtree_leaves,
             scene_box: self.scene_box,
             shadows: self.shadows.restricted(prims.keys().copied()),
+            clip: self.clip.clone(),
             stats: self.stats.clone(),
         };
         let local = Scene {

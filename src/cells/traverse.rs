@@ -437,7 +437,7 @@ impl SlabRay {
     /// are inflated (`CsgTree::cull_bounds`), so a rounding difference
     /// cannot cull a box the ray reaches.
     /// `Aabb::ray_interval` by the inverse direction (for the scene box).
-    #[inline]
+    #[inline(always)]
     fn interval(&self, b: &Aabb, ray: &Ray) -> Option<(f64, f64)> {
         if !self.plain {
             return b.ray_interval(ray);
@@ -575,6 +575,7 @@ impl Mailbox {
 /// is 142 ns per test, 38 ns per cell and nothing per mailbox hit
 /// (R² 0.88; tests alone explain 0.73).
 pub const CELL_WORK: u64 = 1;
+
 pub const TEST_WORK: u64 = 4;
 
 /// The cells accelerator on one thread.
@@ -611,6 +612,13 @@ pub struct CellTracer<'a> {
     /// When recording for a mapping, the times a ray moved to another
     /// node: the machine's messages of paths between nodes.
     moves: u64,
+    /// When recording: the super cell the last step's work was booked to,
+    /// and the one where the last hit of a ray other than a shadow ray
+    /// was: where the machine shades it and starts the rays it spawns.
+    last_booked: Option<(Region, u32)>,
+    spawned_at: Option<(Region, u32)>,
+    /// Whether the walk is a shadow ray's (`walk_shadow`).
+    shadow_walk: bool,
     /// The current walk is a shadow ray's that may stop at the first cell
     /// where the ray passes through the scene's solid (`walk_shadow`).
     occluding: bool,
@@ -651,6 +659,9 @@ impl<'a> CellTracer<'a> {
             profile: None,
             owners: None,
             moves: 0,
+            last_booked: None,
+            spawned_at: None,
+            shadow_walk: false,
             occluding: false,
             light: 0,
             blockers: if scene.lights.len() <= SHADOW_CACHE_LIGHTS {
@@ -850,6 +861,18 @@ fn passes_through(hits: &PrimHits, p: PrimId, t_lo: f64, t_end: f64) -> Option<H
     })
 }
 
+/// Whether one primitive has a crossing with `t_lo <= t <= t_end`: a
+/// boundary the walk over that range might find.
+#[inline]
+fn crosses(hits: &PrimHits, t_lo: f64, t_end: f64) -> bool {
+    let on = |c: &Crossing| c.t >= t_lo && c.t <= t_end;
+    match hits {
+        PrimHits::Miss => false,
+        PrimHits::Solid { enter, exit } => on(enter) || on(exit),
+        PrimHits::Sheet { hits, count } => hits[..*count as usize].iter().any(on),
+    }
+}
+
 /// The first of one primitive's crossings with `t_lo < t < t_end`: what
 /// `SpanList::first_between` gives on the list `push_prim_hits` makes.
 #[inline]
@@ -999,6 +1022,10 @@ pub struct WalkPoint {
     pub super_cell: u32,
     pub cell: u32,
     pub t_in: f64,
+    /// Whether the walk keeps to the box of all but the widest primitive
+    /// (`WideClip`): decided where it started, carried so that no other
+    /// node tests again.
+    pub clipped: bool,
 }
 
 /// How a walk through the cells a tracer holds ends.
@@ -1038,6 +1065,19 @@ impl CellTracer<'_> {
     /// the solid, a glass box on the way, more than `MAX_GLASS` such
     /// primitives) this is `walk`.
     pub fn walk_shadow(
+        &mut self,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        from: Option<WalkPoint>,
+    ) -> Walk {
+        self.shadow_walk = true;
+        let walk = self.walk_shadow_inner(ray, t_min, t_max, from);
+        self.shadow_walk = false;
+        walk
+    }
+
+    fn walk_shadow_inner(
         &mut self,
         ray: &Ray,
         t_min: f64,
@@ -1128,19 +1168,13 @@ impl CellTracer<'_> {
         // nothing lies outside it. The ray is followed only over its part
         // inside that box (padded in t, so rounding cannot cut a boundary
         // off); a ray that misses it meets nothing.
-        let Some((b0, b1)) = self.slab.interval(&self.cs.scene_box, ray) else {
+        let Some((mut b0, mut b1)) = self.slab.interval(&self.cs.scene_box, ray) else {
             return Walk::Miss;
         };
-        let pad = (b0.abs() + b1.abs()) * 1e-9;
-        let (t_min_box, t_max_box) = (t_min.max(b0 - pad), t_max.min(b1 + pad));
-        if t_min_box.partial_cmp(&t_max_box) != Some(std::cmp::Ordering::Less) {
-            return Walk::Miss;
-        }
-        let cam = self.cs.view.ray(ray);
-        let mut order = [Region::Front, Region::Back];
-        if cam.d.z > 0.0 {
-            order.swap(0, 1);
-        }
+        // And only inside the box of all primitives but the widest, when it
+        // crosses none of that one's boundaries over its range (`WideClip`).
+        // Decided from the ray alone, by a test outside the mailboxes, so a
+        // walk resumed on another node clips the same.
         // The shadow cache is asked where a shadow ray starts, on the node
         // that made it, not again where its walk resumes. A plain walk asks
         // in `walk_shadow`; a recording one here, to book the test to the
@@ -1148,9 +1182,42 @@ impl CellTracer<'_> {
         let recording = self.profile.is_some();
         let mut ask_cache =
             recording && self.occluding && from.is_none() && !self.blockers.is_empty();
+        let (mut clipped, mut clip_test) = (false, false);
+        if self.cs.clip.is_some() {
+            let rest;
+            (clipped, clip_test, rest) = self.clip(ray, t_min, t_max, from);
+            if clipped {
+                let Some((r0, r1)) = rest else {
+                    return self.clipped_out(ray, (t_min, t_max), ask_cache, clip_test);
+                };
+                (b0, b1) = (b0.max(r0), b1.min(r1));
+            }
+        }
+        let pad = (b0.abs() + b1.abs()) * 1e-9;
+        let (t_min_box, t_max_box) = (t_min.max(b0 - pad), t_max.min(b1 + pad));
+        if t_min_box.partial_cmp(&t_max_box) != Some(std::cmp::Ordering::Less) {
+            return self.clipped_out(ray, (t_min, t_max), ask_cache, clip_test);
+        }
+        let cam = self.cs.view.ray(ray);
+        let mut order = [Region::Front, Region::Back];
+        if cam.d.z > 0.0 {
+            order.swap(0, 1);
+        }
         let mut from = from;
-        // Recording for a mapping: the node the ray is on.
-        let mut on = None;
+        // Recording for a mapping: the node the ray is on. A clipped walk
+        // other than a primary ray's starts where its parent's hit was,
+        // which need not hold its first cell, far from the ray's origin.
+        // (Any other starts in or next to its parent's cell, and is taken
+        // to start on its first cell's node.)
+        let primary = recording && ray.origin == self.cs.view.eye;
+        let mut on = match (&self.owners, self.spawned_at) {
+            (Some((owners, _)), Some((r, s))) if clipped && !primary => Some(OnNode {
+                node: owners[r as usize][s as usize],
+                region: r,
+                super_cell: s,
+            }),
+            _ => None,
+        };
         let first = from.map_or(0, |p| usize::from(order[0] != p.region));
         for &region in &order[first..] {
             let (lo, hi) = cam.region_interval(region);
@@ -1174,10 +1241,22 @@ impl CellTracer<'_> {
                 }
             };
             self.hint[slot] = s;
+            // The machine asks the cache before it walks, so before the
+            // clip's test.
             if ask_cache {
                 ask_cache = false;
                 if let Some(h) = self.recorded_cache_test(ray, (t_min, t_max), region, s) {
                     return Walk::Hit(h);
+                }
+            }
+            if recording && clip_test {
+                // Made where the ray was made: a primary ray on the owner
+                // of its pixel's super cell, any other where its parent's
+                // hit was.
+                clip_test = false;
+                match self.spawned_at.filter(|_| !primary) {
+                    Some((r0, s0)) => self.book_test(r0, s0),
+                    None => self.book_test(region, s),
                 }
             }
             // The walk is monotone in every screen axis and depth, so it
@@ -1205,6 +1284,7 @@ impl CellTracer<'_> {
                         super_cell: s,
                         cell: k,
                         t_in,
+                        clipped,
                     });
                 }
                 self.counters.cells_visited += 1;
@@ -1217,6 +1297,9 @@ impl CellTracer<'_> {
                     None
                 };
                 if let Some(h) = hit {
+                    if recording && !self.shadow_walk {
+                        self.spawned_at = self.last_booked;
+                    }
                     self.hint[slot] = s;
                     if let Some(o) = on {
                         // The node that found it fills its cache.
@@ -1236,6 +1319,63 @@ impl CellTracer<'_> {
                     }
                     _ => break,
                 }
+            }
+        }
+        if recording {
+            return self.clipped_out(ray, (t_min, t_max), ask_cache, clip_test);
+        }
+        Walk::Miss
+    }
+
+    /// Whether a walk is clipped (`WideClip`), whether that was tested here
+    /// (not carried by `from`), and the ray's interval in the box it is
+    /// clipped to. Out of line: most scenes have no clip, and their walks
+    /// run faster without this code inside.
+    #[inline(never)]
+    fn clip(
+        &mut self,
+        ray: &Ray,
+        t_min: f64,
+        t_max: f64,
+        from: Option<WalkPoint>,
+    ) -> (bool, bool, Option<(f64, f64)>) {
+        let Some(c) = &self.cs.clip else {
+            return (false, false, None);
+        };
+        let (clipped, tested) = match from {
+            Some(p) => (p.clipped, false),
+            None => {
+                self.counters.intersection_tests += 1;
+                (!crosses(&c.prim.intersect(ray), t_min, t_max), true)
+            }
+        };
+        let rest = if clipped {
+            self.slab.interval(&c.rest, ray)
+        } else {
+            None
+        };
+        (clipped, tested, rest)
+    }
+
+    /// The end of a walk that reached no cell (or whose tests are not yet
+    /// booked): when recording, the tests the machine makes before it walks
+    /// (the cache's, the clip's) are booked where the ray was made.
+    #[inline(never)]
+    fn clipped_out(
+        &mut self,
+        ray: &Ray,
+        range: (f64, f64),
+        ask_cache: bool,
+        clip_test: bool,
+    ) -> Walk {
+        if self.profile.is_some()
+            && let Some((r, s)) = self.spawned_at
+        {
+            if ask_cache && let Some(h) = self.recorded_cache_test(ray, range, r, s) {
+                return Walk::Hit(h);
+            }
+            if clip_test {
+                self.book_test(r, s);
             }
         }
         Walk::Miss
@@ -1353,7 +1493,16 @@ impl CellTracer<'_> {
         if let Some(p) = &mut self.profile {
             p[r as usize][b as usize] += CELL_WORK + TEST_WORK * (tests + met);
         }
+        self.last_booked = Some((r, b));
         hit
+    }
+
+    /// Books one intersection test to super cell `s` of `region`, when
+    /// recording.
+    fn book_test(&mut self, region: Region, s: u32) {
+        if let Some(p) = &mut self.profile {
+            p[region as usize][s as usize] += TEST_WORK;
+        }
     }
 }
 

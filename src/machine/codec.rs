@@ -403,7 +403,9 @@ pub fn pack(paths: &[Routed], ctx: &PathContext) -> WireBatch {
                     number: a.number,
                     t_min: (a.t_min.to_bits() != 0f64.to_bits()).then_some(a.t_min),
                     at: a.at.map(|w| WireAt {
-                        cell: w.cell << 1 | (w.region == Region::Back) as u32,
+                        cell: w.cell << 2
+                            | u32::from(w.clipped) << 1
+                            | (w.region == Region::Back) as u32,
                         entry: pack_entry(&w, &a.job.ray, ctx),
                     }),
                     active: pack_job(&a.job, pixel, ctx),
@@ -433,7 +435,8 @@ pub fn unpack(batch: WireBatch, ctx: &PathContext) -> Result<Vec<Routed>, String
                     } else {
                         Region::Front
                     };
-                    let cell = a.cell >> 1;
+                    let cell = a.cell >> 2;
+                    let clipped = a.cell & 2 != 0;
                     let rc = ctx.cells.region(region);
                     if cell as usize >= rc.cell_count() {
                         return Err(format!("a path at cell {cell}, which is none"));
@@ -443,6 +446,7 @@ pub fn unpack(batch: WireBatch, ctx: &PathContext) -> Result<Vec<Routed>, String
                         super_cell: rc.super_cell_of(cell),
                         cell,
                         t_in: 0.0,
+                        clipped,
                     };
                     p.t_in = unpack_entry(a.entry, &p, &job.ray, ctx);
                     Some(p)
@@ -586,6 +590,7 @@ mod tests {
                     super_cell: back.super_cell_of(last),
                     cell: last,
                     t_in: 0.125,
+                    clipped: true,
                 }),
             ),
             // Reflected and refracted rays, finite and infinite t_max, a ray
@@ -622,6 +627,7 @@ mod tests {
                     super_cell: s,
                     cell: k,
                     t_in: t,
+                    clipped: false,
                 });
                 let packed = pack(std::slice::from_ref(&p), &ctx);
                 let entry = packed.0[0].at.unwrap().entry;

@@ -484,6 +484,50 @@ fn random_scenes_render_identically_with_the_shadow_shortcuts() {
     );
 }
 
+/// Random CSG scenes on a wide ground slab, so that walks keep to the box
+/// of everything but the ground when they do not cross it (`WideClip`):
+/// cells and Roth still agree on every pixel, with mirrors, glass, lights
+/// and cameras inside, outside and behind the eye.
+#[test]
+fn random_scenes_on_a_wide_ground_render_identically_with_the_clip() {
+    let ground = "objects: [\n        Union(material: \"white\", children: [Box(min: (-150.0, -8.2, -150.0), max: (150.0, -8.0, 150.0))]),";
+    let mut failures = Vec::new();
+    let mut clipped = 0;
+    for seed in seeds(0..150) {
+        let opts = RandomCsgOptions {
+            max_tree_depth: 1 + (seed % 4) as u32,
+            mirrors_and_glass: seed % 2 == 1,
+            lights: Some(1 + (seed % 3) as u32),
+            camera: [
+                CameraPlacement::Outside,
+                CameraPlacement::Inside,
+                CameraPlacement::BehindEye,
+            ][(seed % 3) as usize],
+            ..RandomCsgOptions::default()
+        };
+        let primitives = 1 + (seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32) as usize % 40;
+        let model = random_csg(seed, primitives, &opts);
+        let ron =
+            scene_to_string(&model, SceneSyntax::Ron)
+                .unwrap()
+                .replacen("objects: [", ground, 1);
+        let scene = load(&ron);
+        let r = options(64, 48);
+        let (roth, _) = render_roth(&scene, &r, &|_| {});
+        let (film, _, cs) = render_cells(&scene, &r, CellOptions::default(), &|_| {});
+        clipped += usize::from(cs.clip.is_some());
+        if roth.sums() != film.sums() {
+            eprintln!("seed {seed}, {primitives} primitives: cells and Roth differ\n{ron}");
+            failures.push(seed);
+        }
+    }
+    assert!(
+        failures.is_empty(),
+        "seeds where cells and Roth differ: {failures:?}"
+    );
+    assert!(clipped >= 140, "{clipped} of 150 scenes clipped");
+}
+
 /// The cells without the shadow shortcuts: every shadow ray walks to its
 /// nearest surface.
 struct NoShortcuts<'a>(CellTracer<'a>);
