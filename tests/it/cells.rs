@@ -421,24 +421,31 @@ fn random_csg_scenes_render_identically_with_cells_and_roth() {
 /// intersection tests against the same cells without them (elsewhere a
 /// light lies in some box, or glass is in the way, or nothing casts a
 /// shadow).
+/// A random scene of up to `max` primitives with 1 to 3 lights, half of
+/// them with mirrors and glass, trees 1 to 4 deep, the camera outside,
+/// inside or with geometry behind the eye, by the seed.
+fn lit_random_scene(seed: u64, max: usize) -> (usize, hypercast::scene::model::SceneFile) {
+    let opts = RandomCsgOptions {
+        max_tree_depth: 1 + (seed % 4) as u32,
+        mirrors_and_glass: seed % 2 == 1,
+        lights: Some(1 + (seed % 3) as u32),
+        camera: [
+            CameraPlacement::Outside,
+            CameraPlacement::Inside,
+            CameraPlacement::BehindEye,
+        ][(seed % 3) as usize],
+        ..RandomCsgOptions::default()
+    };
+    let primitives = 1 + (seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32) as usize % max;
+    (primitives, random_csg(seed, primitives, &opts))
+}
+
 #[test]
 fn random_scenes_render_identically_with_the_shadow_shortcuts() {
     let mut failures = Vec::new();
     let (mut lit, mut saved) = (0, 0);
     for seed in seeds(0..150) {
-        let opts = RandomCsgOptions {
-            max_tree_depth: 1 + (seed % 4) as u32,
-            mirrors_and_glass: seed % 2 == 1,
-            lights: Some(1 + (seed % 3) as u32),
-            camera: [
-                CameraPlacement::Outside,
-                CameraPlacement::Inside,
-                CameraPlacement::BehindEye,
-            ][(seed % 3) as usize],
-            ..RandomCsgOptions::default()
-        };
-        let primitives = 1 + (seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32) as usize % 60;
-        let model = random_csg(seed, primitives, &opts);
+        let (primitives, model) = lit_random_scene(seed, 60);
         let ron = scene_to_string(&model, SceneSyntax::Ron).unwrap();
         let scene = load(&ron);
         let r = options(64, 48);
@@ -494,19 +501,7 @@ fn random_scenes_on_a_wide_ground_render_identically_with_the_clip() {
     let mut failures = Vec::new();
     let mut clipped = 0;
     for seed in seeds(0..150) {
-        let opts = RandomCsgOptions {
-            max_tree_depth: 1 + (seed % 4) as u32,
-            mirrors_and_glass: seed % 2 == 1,
-            lights: Some(1 + (seed % 3) as u32),
-            camera: [
-                CameraPlacement::Outside,
-                CameraPlacement::Inside,
-                CameraPlacement::BehindEye,
-            ][(seed % 3) as usize],
-            ..RandomCsgOptions::default()
-        };
-        let primitives = 1 + (seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32) as usize % 40;
-        let model = random_csg(seed, primitives, &opts);
+        let (primitives, model) = lit_random_scene(seed, 40);
         let ron =
             scene_to_string(&model, SceneSyntax::Ron)
                 .unwrap()
