@@ -575,7 +575,6 @@ impl Mailbox {
 /// is 142 ns per test, 38 ns per cell and nothing per mailbox hit
 /// (R² 0.88; tests alone explain 0.73).
 pub const CELL_WORK: u64 = 1;
-
 pub const TEST_WORK: u64 = 4;
 
 /// The cells accelerator on one thread.
@@ -612,10 +611,9 @@ pub struct CellTracer<'a> {
     /// When recording for a mapping, the times a ray moved to another
     /// node: the machine's messages of paths between nodes.
     moves: u64,
-    /// When recording: the super cell the last step's work was booked to,
-    /// and the one where the last hit of a ray other than a shadow ray
-    /// was: where the machine shades it and starts the rays it spawns.
-    last_booked: Option<(Region, u32)>,
+    /// When recording: the super cell where the last hit of a ray other
+    /// than a shadow ray was, where the machine shades it and starts the
+    /// rays it spawns.
     spawned_at: Option<(Region, u32)>,
     /// Whether the walk is a shadow ray's (`walk_shadow`).
     shadow_walk: bool,
@@ -659,7 +657,6 @@ impl<'a> CellTracer<'a> {
             profile: None,
             owners: None,
             moves: 0,
-            last_booked: None,
             spawned_at: None,
             shadow_walk: false,
             occluding: false,
@@ -1171,10 +1168,6 @@ impl CellTracer<'_> {
         let Some((mut b0, mut b1)) = self.slab.interval(&self.cs.scene_box, ray) else {
             return Walk::Miss;
         };
-        // And only inside the box of all primitives but the widest, when it
-        // crosses none of that one's boundaries over its range (`WideClip`).
-        // Decided from the ray alone, by a test outside the mailboxes, so a
-        // walk resumed on another node clips the same.
         // The shadow cache is asked where a shadow ray starts, on the node
         // that made it, not again where its walk resumes. A plain walk asks
         // in `walk_shadow`; a recording one here, to book the test to the
@@ -1182,6 +1175,10 @@ impl CellTracer<'_> {
         let recording = self.profile.is_some();
         let mut ask_cache =
             recording && self.occluding && from.is_none() && !self.blockers.is_empty();
+        // And only inside the box of all primitives but the widest, when it
+        // crosses none of that one's boundaries over its range (`WideClip`).
+        // Decided where the walk starts, by a test outside the mailboxes,
+        // and carried to the nodes it resumes on.
         let (mut clipped, mut clip_test) = (false, false);
         if self.cs.clip.is_some() {
             let rest;
@@ -1297,8 +1294,10 @@ impl CellTracer<'_> {
                     None
                 };
                 if let Some(h) = hit {
+                    // A hit is in a cell searched here (never one walked
+                    // through), so booked to its own super cell.
                     if recording && !self.shadow_walk {
-                        self.spawned_at = self.last_booked;
+                        self.spawned_at = Some((region, s));
                     }
                     self.hint[slot] = s;
                     if let Some(o) = on {
@@ -1493,7 +1492,6 @@ impl CellTracer<'_> {
         if let Some(p) = &mut self.profile {
             p[r as usize][b as usize] += CELL_WORK + TEST_WORK * (tests + met);
         }
-        self.last_booked = Some((r, b));
         hit
     }
 

@@ -221,8 +221,8 @@ struct WireRouted {
     stack: Vec<WireJob>,
 }
 
-/// A walk point without its super cell: `cell << 1 | region`, and where
-/// the ray entered it.
+/// A walk point without its super cell: `cell << 2 | clipped << 1 |
+/// region`, and where the ray entered it.
 #[derive(Clone, Copy, Debug, Serialize, Deserialize)]
 struct WireAt {
     cell: u32,
