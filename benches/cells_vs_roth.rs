@@ -61,7 +61,7 @@ fn cells(scene: &Scene, o: &RenderOptions) -> (RenderStats, CellStructure) {
         scene,
         o,
         || CellTracer::new(&cs, scene),
-        |j| CellTracer::primary_is_background(&cs, &j.ray),
+        |t, j| t.skips_primary(&j.ray),
         &|_| {},
     );
     (st, cs)

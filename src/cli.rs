@@ -834,7 +834,7 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
             &scene,
             &opts,
             || crate::cells::CellTracer::new(cs, &scene),
-            |job| crate::cells::CellTracer::primary_is_background(cs, &job.ray),
+            |t, job| t.skips_primary(&job.ray),
             &progress,
         );
         pb.finish_and_clear();

@@ -139,7 +139,7 @@ fn sample_jobs(cam: &CameraFrame, pixel: u32, spp: u32, first: u32, out: &mut Ve
 const BAND_ROWS: u32 = 4;
 
 /// Renders on this host with any synchronous tracer: `make_tracer` builds
-/// one per thread; `skip_primary` says which primary rays need no tracing
+/// one per thread; `skip_primary` asks the thread's tracer which primary rays need no tracing
 /// (the paper's pixel areas) and only see the background; `progress` is
 /// told rows done.
 pub fn render_with<T, M, S>(
@@ -152,7 +152,7 @@ pub fn render_with<T, M, S>(
 where
     T: Tracer,
     M: Fn() -> T + Sync,
-    S: Fn(&RayJob) -> bool + Sync,
+    S: Fn(&mut T, &RayJob) -> bool + Sync,
 {
     let all = PixelSet::all(opts.width, opts.height);
     let pass = Pass {
@@ -185,7 +185,7 @@ pub fn render_pass_with<T, M, S>(
 where
     T: Tracer,
     M: Fn() -> T + Sync,
-    S: Fn(&RayJob) -> bool + Sync,
+    S: Fn(&mut T, &RayJob) -> bool + Sync,
 {
     let start = Instant::now();
     let (width, height) = (pass.pixels.width, pass.pixels.height);
@@ -222,7 +222,7 @@ where
                             pass.pixel_jobs(&cam, pixel, &mut jobs);
                             let mut traced = false;
                             for job in jobs.drain(..) {
-                                if skip_primary(&job) {
+                                if skip_primary(&mut tracer, &job) {
                                     // Exactly what tracing would give: a miss.
                                     film.add(job.pixel, shader.miss(&job));
                                 } else {
@@ -344,7 +344,7 @@ pub fn render_host(
                 pass,
                 opts.threads,
                 || RothTracer::new(scene),
-                |_| false,
+                |_, _| false,
                 progress,
             ),
             Some(cs) => render_pass_with(
@@ -352,7 +352,7 @@ pub fn render_host(
                 pass,
                 opts.threads,
                 || CellTracer::new(cs, scene),
-                |job| CellTracer::primary_is_background(cs, &job.ray),
+                |tracer, job| tracer.skips_primary(&job.ray),
                 progress,
             ),
         };

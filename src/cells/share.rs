@@ -12,7 +12,7 @@
 
 use std::collections::BTreeMap;
 
-use super::{CellStructure, NO_SUBTREE, REMOTE, Region, SubtreeLeaf};
+use super::{CellStructure, NO_SUBTREE, NOT_HELD, REMOTE, Region, SubtreeLeaf, WideClip};
 use crate::csg::{CsgNode, CsgTree, NodeId, PrimId};
 use crate::geom::{Aabb, Vec3};
 use crate::scene::Scene;
@@ -154,7 +154,12 @@ impl CellStructure {
             subtree_leaves,
             scene_box: self.scene_box,
             shadows: self.shadows.restricted(prims.keys().copied()),
-            clip: self.clip.clone(),
+            clip: self.clip.as_ref().map(|c| {
+                Box::new(WideClip {
+                    id: prims.get(&c.id).copied().unwrap_or(NOT_HELD),
+                    ..(**c).clone()
+                })
+            }),
             stats: self.stats.clone(),
         };
         let local = Scene {

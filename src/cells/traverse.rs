@@ -17,7 +17,7 @@
 use super::bsp::stitch;
 use super::projection::{CamRay, Region, contains};
 use super::share::Hull;
-use super::{CellStructure, REMOTE, RegionCells, SubtreeLeaf, is_remote};
+use super::{CellStructure, NOT_HELD, REMOTE, RegionCells, SubtreeLeaf, is_remote};
 use crate::csg::{Crossing, EvalCounts, Evaluator, NodeId, PrimHits, PrimId};
 use crate::geom::{Aabb, Ray, Vec3};
 use crate::render::TraceCounters;
@@ -473,6 +473,23 @@ impl SlabRay {
                 let pad = (t_in.abs() + t_end.abs()) * 1e-9;
                 // NaN compares false: the cell is kept.
                 b1 < t_in - pad || b0 > t_end + pad
+            }
+        }
+    }
+
+    /// Whether the ray's part `[t_lo, t_hi]` may meet box `b` (a culling
+    /// box, inflated): the ray's interval in the box is widened by a
+    /// relative 1e-9 of its own ends, so that a point of the box the
+    /// rounding of those ends would leave out is kept. False only where
+    /// every point of the ray in the box lies outside `[t_lo, t_hi]`.
+    #[inline]
+    fn meets_range(&self, b: &Aabb, ray: &Ray, t_lo: f64, t_hi: f64) -> bool {
+        match self.interval(b, ray) {
+            None => false,
+            Some((b0, b1)) => {
+                let pad = (b0.abs() + b1.abs()) * 1e-9;
+                // NaN compares false: the box is kept.
+                !(b1 + pad < t_lo || b0 - pad > t_hi)
             }
         }
     }
@@ -957,6 +974,16 @@ impl<'a> CellTracer<'a> {
             .super_cell_is_empty(cs.primary_super_cell(ray))
     }
 
+    /// `primary_is_background` for this tracer's next primary ray, found
+    /// from the super cell where its last primary ray started (most often
+    /// the same, the next pixel's), not by descending the BSP; the walk
+    /// that traces the ray then starts there at once.
+    pub fn skips_primary(&mut self, ray: &Ray) -> bool {
+        let s = self.cs.primary_super_cell_from(ray, self.hint[2]);
+        self.hint[2] = s;
+        self.cs.region(Region::Front).super_cell_is_empty(s)
+    }
+
     /// Bytes a tracer over `cs` and `scene` keeps: a mailbox and the
     /// crossings per primitive, an operator mailbox per scene node, and a
     /// shadow cache entry per light.
@@ -1343,9 +1370,27 @@ impl CellTracer<'_> {
         };
         let (clipped, tested) = match from {
             Some(p) => (p.clipped, false),
+            // A ray whose range misses the primitive's (inflated) box
+            // crosses none of its boundaries there, and needs no test:
+            // most shadow and reflected rays above a ground.
+            None if !self.slab.meets_range(&c.cull, ray, t_min, t_max) => (true, false),
+            // The same ray again (a shadow ray past a surface it crossed):
+            // its crossings are in the primitive's mailbox.
+            None if c.id != NOT_HELD && self.mailboxes[c.id as usize].ray == self.ray_id => {
+                self.counters.mailbox_hits += 1;
+                (!crosses(&self.hits[c.id as usize], t_min, t_max), false)
+            }
             None => {
                 self.counters.intersection_tests += 1;
-                (!crosses(&c.prim.intersect(ray), t_min, t_max), true)
+                let hits = c.prim.intersect(ray);
+                // Into the mailbox (section 8), as a cell's first look
+                // would fill it: a ray that crosses the primitive is not
+                // clipped, and its walk meets it again.
+                if c.id != NOT_HELD {
+                    self.mailboxes[c.id as usize] = Mailbox::of(self.ray_id, &hits);
+                    self.hits[c.id as usize] = hits;
+                }
+                (!crosses(&hits, t_min, t_max), true)
             }
         };
         let rest = if clipped {

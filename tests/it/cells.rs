@@ -343,7 +343,7 @@ fn differences(scene: &Scene, opts: &RenderOptions, choice: SegmentChoice) -> St
             cells: CellTracer::new(&cs, scene),
             diffs: &diffs,
         },
-        |_| false,
+        |_, _| false,
         &|_| {},
     );
     let diffs = diffs.into_inner().unwrap();
@@ -471,7 +471,7 @@ fn random_scenes_render_identically_with_the_shadow_shortcuts() {
                     &scene,
                     &r,
                     || NoShortcuts(CellTracer::new(&cs, &scene)),
-                    |j| CellTracer::primary_is_background(&cs, &j.ray),
+                    |t, j| t.0.skips_primary(&j.ray),
                     &|_| {},
                 )
                 .1;
