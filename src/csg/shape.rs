@@ -994,7 +994,9 @@ impl Shear {
     /// z scaled so that `t` is a weighted sum of the three.
     #[inline]
     fn project(&self, p: Vec3) -> [f64; 3] {
-        let q = p - self.o;
+        // An array, not `Vec3`: indexing a `Vec3` by a run-time axis is a
+        // match per access.
+        let q = (p - self.o).to_array();
         let z = q[self.kz];
         [
             q[self.kx] - self.sx * z,
@@ -1020,7 +1022,13 @@ impl Shear {
     /// one owns the vertex (`ROBUSTNESS.md` case 29, Embree #188).
     #[inline]
     fn triangle(&self, a: Vec3, b: Vec3, c: Vec3) -> Option<f64> {
-        let (pa, pb, pc) = (self.project(a), self.project(b), self.project(c));
+        self.projected_triangle(self.project(a), self.project(b), self.project(c))
+    }
+
+    /// `triangle` of vertices already in ray space (`project`), so that a
+    /// polygon's fan projects each vertex once.
+    #[inline]
+    fn projected_triangle(&self, pa: [f64; 3], pb: [f64; 3], pc: [f64; 3]) -> Option<f64> {
         let u = edge_function(pc, pb);
         let v = edge_function(pa, pc);
         let w = edge_function(pb, pa);
@@ -1078,13 +1086,36 @@ fn polygon_hits(ray: &Ray, p: &Polygon) -> PrimHits {
     let Some(shear) = Shear::new(ray) else {
         return PrimHits::Miss;
     };
+    // Each vertex projected once for the whole fan (the same arithmetic
+    // as per triangle, so the same hits), up to `FAN` vertices.
+    const FAN: usize = 8;
+    let mut projected = [[0.0; 3]; FAN];
+    let few = p.vertices.len() <= FAN;
+    if few {
+        for (q, v) in projected.iter_mut().zip(&p.vertices) {
+            *q = shear.project(*v);
+        }
+    }
     for tri in &p.triangles {
         let [i, j, k] = tri.map(|i| i as usize);
-        let (Some(a), Some(b), Some(c)) = (p.vertices.get(i), p.vertices.get(j), p.vertices.get(k))
-        else {
-            continue;
+        let hit = if few {
+            let (Some(a), Some(b), Some(c)) = (
+                projected[..p.vertices.len()].get(i),
+                projected[..p.vertices.len()].get(j),
+                projected[..p.vertices.len()].get(k),
+            ) else {
+                continue;
+            };
+            shear.projected_triangle(*a, *b, *c)
+        } else {
+            let (Some(a), Some(b), Some(c)) =
+                (p.vertices.get(i), p.vertices.get(j), p.vertices.get(k))
+            else {
+                continue;
+            };
+            shear.triangle(*a, *b, *c)
         };
-        if let Some(t) = shear.triangle(*a, *b, *c) {
+        if let Some(t) = hit {
             return sheet(Some(crossing(t, 0)), None);
         }
     }
