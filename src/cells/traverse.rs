@@ -1353,9 +1353,9 @@ impl CellTracer<'_> {
         Walk::Miss
     }
 
-    /// Whether a walk is clipped (`WideClip`), whether that was tested here
-    /// (not carried by `from`), and the ray's interval in the box it is
-    /// clipped to. Out of line: most scenes have no clip, and their walks
+    /// Whether a walk is clipped (`WideClip`), whether an intersection test
+    /// decided it here (not carried by `from`, nor settled by the box or
+    /// the mailbox), and the ray's interval in the box it is clipped to. Out of line: most scenes have no clip, and their walks
     /// run faster without this code inside.
     #[inline(never)]
     fn clip(
