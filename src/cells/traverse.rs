@@ -1355,8 +1355,9 @@ impl CellTracer<'_> {
 
     /// Whether a walk is clipped (`WideClip`), whether an intersection test
     /// decided it here (not carried by `from`, nor settled by the box or
-    /// the mailbox), and the ray's interval in the box it is clipped to. Out of line: most scenes have no clip, and their walks
-    /// run faster without this code inside.
+    /// the mailbox), and the ray's interval in the box it is clipped to.
+    /// Out of line: most scenes have no clip, and their walks run faster
+    /// without this code inside.
     #[inline(never)]
     fn clip(
         &mut self,
@@ -1376,9 +1377,16 @@ impl CellTracer<'_> {
             None if !self.slab.meets_range(&c.cull, ray, t_min, t_max) => (true, false),
             // The same ray again (a shadow ray past a surface it crossed):
             // its crossings are in the primitive's mailbox.
+            // (Crossings are kept only for a primitive the ray meets: a
+            // mailbox of a culled one has an empty extent and stale hits.)
             None if c.id != NOT_HELD && self.mailboxes[c.id as usize].ray == self.ray_id => {
                 self.counters.mailbox_hits += 1;
-                (!crosses(&self.hits[c.id as usize], t_min, t_max), false)
+                let mb = self.mailboxes[c.id as usize];
+                let met = mb.hi >= t_min && mb.lo <= t_max;
+                (
+                    !(met && crosses(&self.hits[c.id as usize], t_min, t_max)),
+                    false,
+                )
             }
             None => {
                 self.counters.intersection_tests += 1;
