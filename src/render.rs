@@ -139,9 +139,9 @@ fn sample_jobs(cam: &CameraFrame, pixel: u32, spp: u32, first: u32, out: &mut Ve
 const BAND_ROWS: u32 = 4;
 
 /// Renders on this host with any synchronous tracer: `make_tracer` builds
-/// one per thread; `skip_primary` asks the thread's tracer which primary rays need no tracing
-/// (the paper's pixel areas) and only see the background; `progress` is
-/// told rows done.
+/// one per thread; `skip_primary` asks the thread's tracer which primary
+/// rays need no tracing (the paper's pixel areas) and only see the
+/// background; `progress` is told rows done.
 pub fn render_with<T, M, S>(
     scene: &Scene,
     opts: &RenderOptions,

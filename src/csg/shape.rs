@@ -1099,11 +1099,10 @@ fn polygon_hits(ray: &Ray, p: &Polygon) -> PrimHits {
     for tri in &p.triangles {
         let [i, j, k] = tri.map(|i| i as usize);
         let hit = if few {
-            let (Some(a), Some(b), Some(c)) = (
-                projected[..p.vertices.len()].get(i),
-                projected[..p.vertices.len()].get(j),
-                projected[..p.vertices.len()].get(k),
-            ) else {
+            let projected = &projected[..p.vertices.len()];
+            let (Some(a), Some(b), Some(c)) =
+                (projected.get(i), projected.get(j), projected.get(k))
+            else {
                 continue;
             };
             shear.projected_triangle(*a, *b, *c)
