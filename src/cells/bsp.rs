@@ -103,6 +103,11 @@ struct Pending {
     /// The segments in the region (the fewest-splits rule only).
     segs: Vec<Seg>,
     prims: Vec<u32>,
+    /// The sampled rule only: per axis, `prims` sorted by their rectangles'
+    /// low and by their high edges along it (then by number). Sorted once
+    /// at the root and kept in order as regions split, so that choosing a
+    /// split is a sweep, not a sort (Wald and Havran's n log n build).
+    sorted: [[Vec<u32>; 2]; 2],
     depth: u32,
 }
 
@@ -183,14 +188,35 @@ pub fn partition_in(
     let mut out = Partition::default();
     out.nodes.push(BspNode::Leaf(0));
     let mut queue = VecDeque::new();
+    let sorted = if choice == SegmentChoice::Sampled {
+        [0, 1].map(|axis| {
+            [false, true].map(|high| {
+                let mut edges: Vec<(f64, u32)> = prims
+                    .iter()
+                    .filter_map(|&i| {
+                        let r = rects[i as usize]?;
+                        Some((if high { r.hi(axis) } else { r.lo(axis) }, i))
+                    })
+                    .collect();
+                edges.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                edges.into_iter().map(|e| e.1).collect()
+            })
+        })
+    } else {
+        Default::default()
+    };
     queue.push_back(Pending {
         node: 0,
         rect: Rect::PLANE,
         segs,
         prims,
+        sorted,
         depth: 0,
     });
     let mut scratch = SweepScratch::default();
+    // Per primitive, the sides of the last split it was in (bit 0: low,
+    // bit 1: high), for the sorted lists.
+    let mut sides = vec![0u8; rects.len()];
     // Breadth first, so an exhausted budget stops all regions alike.
     while let Some(p) = queue.pop_front() {
         let leaves_if_stopped = out.leaves.len() + queue.len() + 1;
@@ -202,7 +228,7 @@ pub fn partition_in(
                 SegmentChoice::FewestSplits => choose(&p.segs),
                 SegmentChoice::Sampled => {
                     let force = leaves_if_stopped < min_leaves;
-                    cost.choose(&p.rect, &p.prims, rects, &mut scratch, force)
+                    cost.choose(&p.rect, &p.sorted, rects, &mut scratch, force)
                 }
             }
         };
@@ -241,6 +267,7 @@ pub fn partition_in(
         for &i in &p.prims {
             let Some(r) = rects[i as usize] else { continue };
             let (to_lo, to_hi) = (r.lo(a) < c, r.hi(a) > c);
+            sides[i as usize] = u8::from(to_lo) | u8::from(to_hi) << 1;
             if to_lo {
                 lo_prims.push(i);
             }
@@ -256,6 +283,26 @@ pub fn partition_in(
                     .count() as u64;
             }
         }
+        // The sorted lists keep their order on both sides.
+        let side = |order: &Vec<u32>, bit: u8, len: usize| -> Vec<u32> {
+            let mut out = Vec::with_capacity(len);
+            out.extend(
+                order
+                    .iter()
+                    .copied()
+                    .filter(|&i| sides[i as usize] & bit != 0),
+            );
+            out
+        };
+        let (nl, nh) = (lo_prims.len(), hi_prims.len());
+        let lo_sorted = p
+            .sorted
+            .each_ref()
+            .map(|o| o.each_ref().map(|o| side(o, 1, nl)));
+        let hi_sorted = p
+            .sorted
+            .each_ref()
+            .map(|o| o.each_ref().map(|o| side(o, 2, nh)));
         let mut lo_rect = p.rect;
         lo_rect.set_hi(a, c);
         let mut hi_rect = p.rect;
@@ -274,6 +321,7 @@ pub fn partition_in(
             rect: lo_rect,
             segs: lo_segs,
             prims: lo_prims,
+            sorted: lo_sorted,
             depth: p.depth + 1,
         });
         queue.push_back(Pending {
@@ -281,6 +329,7 @@ pub fn partition_in(
             rect: hi_rect,
             segs: hi_segs,
             prims: hi_prims,
+            sorted: hi_sorted,
             depth: p.depth + 1,
         });
     }
@@ -427,12 +476,12 @@ impl Cost {
     fn choose(
         &self,
         region: &Rect,
-        prims: &[u32],
+        sorted: &[[Vec<u32>; 2]; 2],
         rects: &[Option<Rect>],
         scratch: &mut SweepScratch,
         force: bool,
     ) -> Option<(u8, f64)> {
-        let n = prims.len();
+        let n = sorted[0][0].len();
         if n == 0 {
             return None;
         }
@@ -443,19 +492,17 @@ impl Cost {
         let mut best: (f64, Option<(u8, f64)>) = (f64::INFINITY, None);
         let traverse: f64 = TRAVERSE;
         let mut leaf = 0.0;
-        for axis in 0..2 {
+        for (axis, [by_lo, by_hi]) in sorted.iter().enumerate() {
             let (los, his) = (&mut scratch.los, &mut scratch.his);
             los.clear();
             his.clear();
-            for &p in prims {
-                if let Some(r) = &rects[p as usize] {
-                    let w = self.weights[p as usize];
-                    los.push((r.lo(axis), w));
-                    his.push((r.hi(axis), w));
-                }
+            for (list, order, high) in [(&mut *los, by_lo, false), (&mut *his, by_hi, true)] {
+                list.extend(order.iter().filter_map(|&p| {
+                    let r = rects[p as usize].as_ref()?;
+                    let edge = if high { r.hi(axis) } else { r.lo(axis) };
+                    Some((edge, self.weights[p as usize]))
+                }));
             }
-            los.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-            his.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
             let total: f64 = los.iter().map(|e| e.1).sum();
             if axis == 0 {
                 leaf = total;

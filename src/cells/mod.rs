@@ -899,8 +899,11 @@ fn depth_partition(
     // Cut positions in [zmin, zmax], in order.
     let mut cuts = vec![zmin];
     let cost = DepthCost::new(zmax - zmin);
-    let idx: Vec<u32> = (0..extents.len() as u32).collect();
-    cost.split(extents, &idx, zmin, zmax, &mut cuts);
+    let mut by_start: Vec<u32> = (0..extents.len() as u32).collect();
+    let mut by_end = by_start.clone();
+    by_start.sort_unstable_by(|&a, &b| extents[a as usize].1.total_cmp(&extents[b as usize].1));
+    by_end.sort_unstable_by(|&a, &b| extents[a as usize].2.total_cmp(&extents[b as usize].2));
+    cost.split(extents, &by_start, &by_end, zmin, zmax, &mut cuts);
     cuts.push(zmax);
     let mut prims = Vec::new();
     let mut bounds = vec![rz0];
@@ -968,23 +971,27 @@ impl DepthCost {
         self.all + (1.0 - self.all) * (hi - lo) / self.extent
     }
 
-    /// Pushes the cuts of `[lo, hi)` (holding the extents `idx`) in order.
+    /// Pushes the cuts of `[lo, hi)` in order. The region holds the
+    /// extents listed in `by_start` and in `by_end`, sorted by their starts
+    /// and by their ends: sorted once (`depth_partition`) and split in
+    /// order, so a level costs a pass, not a sort (n log n for the whole
+    /// tree). The sweep sees the same values in the same order as when
+    /// each level sorted its own: the same cuts.
     fn split(
         &self,
         extents: &[(u32, f64, f64)],
-        idx: &[u32],
+        by_start: &[u32],
+        by_end: &[u32],
         lo: f64,
         hi: f64,
         cuts: &mut Vec<f64>,
     ) {
-        let n = idx.len();
+        let n = by_start.len();
         if n == 0 {
             return;
         }
-        let mut starts: Vec<f64> = idx.iter().map(|&i| extents[i as usize].1).collect();
-        let mut ends: Vec<f64> = idx.iter().map(|&i| extents[i as usize].2).collect();
-        starts.sort_unstable_by(f64::total_cmp);
-        ends.sort_unstable_by(f64::total_cmp);
+        let start = |k: usize| extents[by_start[k] as usize].1;
+        let end = |k: usize| extents[by_end[k] as usize].2;
         let whole = self.weight(lo, hi);
         let mut best = (n as f64, None);
         // Candidates: the extents' ends inside (lo, hi), in order; a cell
@@ -993,22 +1000,22 @@ impl DepthCost {
         let (mut i, mut j) = (0usize, 0usize);
         let (mut before, mut ended) = (0usize, 0usize);
         while i < n || j < n {
-            let c = match (starts.get(i), ends.get(j)) {
-                (Some(&a), Some(&b)) => a.min(b),
-                (Some(&a), None) => a,
-                (None, Some(&b)) => b,
-                (None, None) => break,
+            let c = match (i < n, j < n) {
+                (true, true) => start(i).min(end(j)),
+                (true, false) => start(i),
+                (false, true) => end(j),
+                (false, false) => break,
             };
-            while before < n && starts[before] < c {
+            while before < n && start(before) < c {
                 before += 1;
             }
-            while ended < n && ends[ended] <= c {
+            while ended < n && end(ended) <= c {
                 ended += 1;
             }
-            while i < n && starts[i] == c {
+            while i < n && start(i) == c {
                 i += 1;
             }
-            while j < n && ends[j] == c {
+            while j < n && end(j) == c {
                 j += 1;
             }
             if !(c > lo && c < hi) {
@@ -1022,18 +1029,22 @@ impl DepthCost {
             }
         }
         let Some(c) = best.1 else { return };
-        let left: Vec<u32> = idx
+        // [lo, c) holds the extents starting before c: a prefix of
+        // `by_start`; [c, hi) those ending after c: a suffix of `by_end`.
+        let starts_left = by_start.partition_point(|&e| extents[e as usize].1 < c);
+        let ends_right = by_end.partition_point(|&e| extents[e as usize].2 <= c);
+        let ends_left: Vec<u32> = by_end
             .iter()
             .copied()
-            .filter(|&i| extents[i as usize].1 < c)
+            .filter(|&e| extents[e as usize].1 < c)
             .collect();
-        let right: Vec<u32> = idx
-            .iter()
-            .copied()
-            .filter(|&i| extents[i as usize].2 > c)
-            .collect();
-        self.split(extents, &left, lo, c, cuts);
+        self.split(extents, &by_start[..starts_left], &ends_left, lo, c, cuts);
         cuts.push(c);
-        self.split(extents, &right, c, hi, cuts);
+        let starts_right: Vec<u32> = by_start
+            .iter()
+            .copied()
+            .filter(|&e| extents[e as usize].2 > c)
+            .collect();
+        self.split(extents, &starts_right, &by_end[ends_right..], c, hi, cuts);
     }
 }

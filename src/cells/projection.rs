@@ -312,43 +312,53 @@ impl View {
         }
         let planes = &planes[..cutting];
         let (mut z0, mut z1) = (f64::INFINITY, f64::NEG_INFINITY);
-        // Sutherland-Hodgman on each face. The extremes of z over the
-        // clipped box are at its vertices: on a face of the box (found
-        // here), or where three clipping planes meet, which is on the eye
-        // plane (the side planes of the front region all pass through the
-        // eye; in the back region they are parallel to z). Those count
-        // below, conservatively, whenever the box reaches the eye plane.
-        let mut a = [Vec3::ZERO; 12];
-        let mut b = [Vec3::ZERO; 12];
-        for face in &FACES {
-            let mut len = 4;
-            for (k, &i) in face.iter().enumerate() {
-                a[k] = corners[i];
+        if planes.is_empty() {
+            // No plane cuts the box: its extent is its corners' (which
+            // the faces below would give, corner by corner).
+            for c in corners {
+                z0 = z0.min(c.z);
+                z1 = z1.max(c.z);
             }
-            for pl in planes {
-                let mut out = 0;
-                for k in 0..len {
-                    let (p, q) = (a[k], a[(k + 1) % len]);
-                    let (dp, dq) = (dist(pl, &p), dist(pl, &q));
-                    if dp >= 0.0 {
-                        b[out] = p;
-                        out += 1;
+        } else {
+            // Sutherland-Hodgman on each face. The extremes of z over the
+            // clipped box are at its vertices: on a face of the box (found
+            // here), or where three clipping planes meet, which is on the eye
+            // plane (the side planes of the front region all pass through the
+            // eye; in the back region they are parallel to z). Those count
+            // below, conservatively, whenever the box reaches the eye plane.
+            // Two polygon buffers, swapped by reference after each plane.
+            let (mut buf_a, mut buf_b) = ([Vec3::ZERO; 12], [Vec3::ZERO; 12]);
+            for face in &FACES {
+                let (mut a, mut b) = (&mut buf_a, &mut buf_b);
+                let mut len = 4;
+                for (k, &i) in face.iter().enumerate() {
+                    a[k] = corners[i];
+                }
+                for pl in planes {
+                    let mut out = 0;
+                    for k in 0..len {
+                        let (p, q) = (a[k], a[(k + 1) % len]);
+                        let (dp, dq) = (dist(pl, &p), dist(pl, &q));
+                        if dp >= 0.0 {
+                            b[out] = p;
+                            out += 1;
+                        }
+                        if (dp >= 0.0) != (dq >= 0.0) {
+                            let s = dp / (dp - dq);
+                            b[out] = p + (q - p) * s;
+                            out += 1;
+                        }
                     }
-                    if (dp >= 0.0) != (dq >= 0.0) {
-                        let s = dp / (dp - dq);
-                        b[out] = p + (q - p) * s;
-                        out += 1;
+                    len = out;
+                    std::mem::swap(&mut a, &mut b);
+                    if len == 0 {
+                        break;
                     }
                 }
-                len = out;
-                std::mem::swap(&mut a, &mut b);
-                if len == 0 {
-                    break;
+                for p in &a[..len] {
+                    z0 = z0.min(p.z);
+                    z1 = z1.max(p.z);
                 }
-            }
-            for p in &a[..len] {
-                z0 = z0.min(p.z);
-                z1 = z1.max(p.z);
             }
         }
         if z0 > z1 {
