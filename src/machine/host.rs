@@ -590,6 +590,8 @@ fn run_pass(
         overhead: topo.message_overhead,
         compute_speed: topo.compute_speed,
     };
+    let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
+    let lag_slices = super::node::lag_slices(n, cores);
     let (mut host, node_links) = channels(d, opts.capacity);
     let mut run = Run::new(opts.width, opts.height, pass.spp, n, model);
     let pixels = pass.pixels.list().map(|l| l.to_vec());
@@ -619,6 +621,7 @@ fn run_pass(
                 local_credits: plan.local_credits(),
                 budget: topo.node_memory,
                 link: model,
+                lag_slices,
                 fail_after: opts.fail.filter(|f| f.0 as usize == i).map(|f| f.1),
             };
             if let Err(e) = run.send(&mut host, i as u16, &ToNode::Load(Box::new(share))) {

@@ -90,6 +90,10 @@ pub struct Share {
     pub local_credits: u32,
     pub budget: u64,
     pub link: LinkModel,
+    /// How far (in slices of work) the node's clock may run ahead of its
+    /// neighbours': an emulation parameter of the host's threads, not of
+    /// the modelled machine (`node::lag_slices`).
+    pub lag_slices: f64,
     /// Test-only fault injection: fail after this many paths processed.
     pub fail_after: Option<u64>,
 }

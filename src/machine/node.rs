@@ -57,12 +57,20 @@ const BATCH_WAIT: f64 = 2.0;
 /// slowest clock never waits, so the machine never deadlocks.)
 ///
 /// The lag is a delay the model adds: a path sent to a node that is ahead
-/// is taken up to the lag late. One slice, measured on the sphereflake at
-/// 1024x1024 (two runs each): 4 slices gave 5,500 virtual seconds on the
-/// iPSC-D5, 1 slice 4,260, a quarter slice 3,660; wall time 4.45 s, 4.46 s
-/// and 5.5 s at d = 5, and 2.0 s, 2.0 s and 3.8 s at d = 1, where a
-/// smaller lag makes the two node threads wait for each other.
+/// is taken up to the lag late. How far threads drift apart depends on how
+/// many share a core (`lag_slices`): with many nodes per core (32 on 2),
+/// one slice, measured on the sphereflake at 1024x1024 (two runs each): 4
+/// slices gave 5,500 virtual seconds on the iPSC-D5, 1 slice 4,260, a
+/// quarter slice 3,660; wall time 4.45 s, 4.46 s and 5.5 s at d = 5.
 const LAG_SLICES: f64 = 1.0;
+/// The lag when every node has a core of its own: the threads run side by
+/// side and drift only when the scheduler preempts one (for the host
+/// thread), and a short lag then makes them wait for each other at every
+/// preemption. Sphereflake at 1024x1024, d = 1 on 2 cores, two runs each:
+/// 8 slices gave 3.33-3.45 s wall and 36,000-36,300 virtual seconds, 1
+/// slice 4.08-4.39 s and 37,600-38,800 (at d = 5, 8 slices gave 6,600-8,100
+/// virtual seconds against 5,600-5,700 for one).
+const LAG_SLICES_OWN_CORE: f64 = 8.0;
 /// Host time a node works between two readings of its CPU time.
 const SLICE: Duration = Duration::from_micros(25);
 /// How long (host time) the messages for the host may gather before they
@@ -72,6 +80,15 @@ const SLICE: Duration = Duration::from_micros(25);
 /// nodes, wakes a few thousand times a second instead of once per slice
 /// of every node.
 const HOST_COALESCE: Duration = Duration::from_micros(500);
+
+/// Slices of work a node may run ahead of its neighbours (`LAG_SLICES`)
+/// when `nodes` node threads share `cores` cores: from one slice when four
+/// or more share a core, to `LAG_SLICES_OWN_CORE` when each has its own.
+/// Emulation only: it changes when threads wait, never the image.
+pub fn lag_slices(nodes: usize, cores: usize) -> f64 {
+    let per_core = nodes as f64 / cores.max(1) as f64;
+    (LAG_SLICES_OWN_CORE / per_core).clamp(LAG_SLICES, LAG_SLICES_OWN_CORE)
+}
 
 /// Thread CPU time in seconds: what the node computed, not what the host's
 /// scheduler gave other threads meanwhile.
@@ -411,9 +428,9 @@ impl<'a> Node<'a> {
     }
 
     /// The most virtual time a node may run ahead of a neighbour: a few
-    /// slices of its work.
+    /// slices of its work (`Share::lag_slices`).
     fn lag(&self) -> f64 {
-        LAG_SLICES * SLICE.as_secs_f64() / self.model.compute_speed
+        self.share.lag_slices * SLICE.as_secs_f64() / self.model.compute_speed
     }
 
     /// Whether the node is so far ahead of a neighbour, in virtual time,
