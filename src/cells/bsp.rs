@@ -285,7 +285,8 @@ pub fn partition_in(
         }
         // The sorted lists keep their order on both sides.
         let side = |order: &Vec<u32>, bit: u8, len: usize| -> Vec<u32> {
-            let mut out = Vec::with_capacity(len);
+            // (Empty lists under the fewest-splits rule: no room.)
+            let mut out = Vec::with_capacity(len.min(order.len()));
             out.extend(
                 order
                     .iter()
