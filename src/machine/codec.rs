@@ -164,10 +164,10 @@ pub fn for_each_frame<T: DeserializeOwned>(
         let Some((body_len, n)) = read_leb128(bytes) else {
             return Err(format!("a frame of {} bytes has no length", bytes.len()));
         };
-        let Some(stamp) = bytes.get(n..n + 8) else {
+        let Some(&stamp) = bytes[n..].first_chunk::<8>() else {
             return Err(format!("a frame of {} bytes has no stamp", bytes.len()));
         };
-        let stamp = f64::from_le_bytes(stamp.try_into().expect("8 bytes"));
+        let stamp = f64::from_le_bytes(stamp);
         let rest = &bytes[n + 8..];
         let body_len = usize::try_from(body_len).unwrap_or(usize::MAX);
         if body_len > rest.len() {
@@ -513,7 +513,8 @@ mod tests {
         assert_eq!(back.len(), 2);
         assert_eq!((back[0].0, &back[0].1), (2.5, &v));
         assert_eq!((back[1].0, back[1].1[0].0), (4.0, 3));
-        assert!(decode_envelope::<u8>(&[1, 2]).is_err());
+        let short = decode_envelope::<u8>(&[1, 2]).unwrap_err();
+        assert!(short.contains("has no stamp"), "{short}");
         assert!(decode_envelope::<u8>(&env[..env.len() - 1]).is_err());
     }
 

@@ -551,23 +551,25 @@ const BAKE_LOOKUP: usize = 64;
 /// transforms are looked through, so deep chains of transforms over many
 /// primitives stay linear.
 fn place_primitive(shape: Shape, up: &Inherited<'_>, material: MaterialId) -> Primitive {
-    let mut shape = shape;
     let mut link = up.transforms;
     let mut inner = Affine::IDENTITY;
+    // The shape baked under `inner`, kept rather than baked again.
+    let mut baked = None;
     for _ in 0..BAKE_LOOKUP {
         let Some(l) = link else { break };
         let candidate = l.own.then_inner(&inner);
-        match crate::csg::shape::bake_exactly(shape.clone(), &candidate) {
-            Some(_) => inner = candidate,
-            None => break,
-        }
+        let Some(b) = crate::csg::shape::bake_exactly(shape.clone(), &candidate) else {
+            break;
+        };
+        (inner, baked) = (candidate, Some(b));
         link = l.parent;
     }
     let outer = link.map_or(Affine::IDENTITY, |l| l.to_world);
-    if !inner.is_identity() {
-        shape = crate::csg::shape::bake_exactly(shape, &inner)
-            .expect("the inner transforms were checked to bake");
-    }
+    // Under identity transforms the shape stays exactly as written.
+    let shape = match baked {
+        Some(b) if !inner.is_identity() => b,
+        _ => shape,
+    };
     Primitive::new(shape, &outer, material)
 }
 
