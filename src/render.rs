@@ -243,7 +243,10 @@ where
                             }
                         }
                         if let Some(film) = film {
-                            image.lock().expect("a render thread panicked").merge(&film);
+                            image
+                                .lock()
+                                .expect("poisoned only by a panic in merge, a bug")
+                                .merge(&film);
                         }
                         progress(rows);
                     }
@@ -254,10 +257,14 @@ where
             .collect();
         handles
             .into_iter()
-            .map(|h| h.join().expect("render thread panicked"))
+            .map(|h| {
+                h.join()
+                    .expect("a render thread panicked (a bug, not bad input)")
+            })
             .collect()
     });
-    let film = image.into_inner().expect("a render thread panicked");
+    // Every thread was joined without a panic above, so none poisoned it.
+    let film = image.into_inner().expect("no render thread panicked");
     let mut stats = RenderStats::default();
     for (s, c) in &results {
         stats.merge(s);
@@ -293,7 +300,9 @@ pub fn render_cells(
     progress: &(dyn Fn(u32) + Sync),
 ) -> (Film, RenderStats, CellStructure) {
     let r = render_host(scene, opts, None, Accel::Cells, cell_opts, progress);
-    let cs = r.cells.expect("a cells render keeps its structure");
+    let cs = r
+        .cells
+        .expect("render_host with Accel::Cells returns the structure it built");
     (r.film, r.stats, cs)
 }
 

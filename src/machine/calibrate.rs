@@ -136,8 +136,8 @@ pub fn host_dimensions(cores: usize) -> Vec<u32> {
 pub fn calibrate() -> Calibration {
     // The host end stays alive: a node whose host link is gone stops.
     let (_host, mut nodes) = channels(1, DEFAULT_CAPACITY);
-    let mut receiving = nodes.pop().expect("two nodes");
-    let mut sending = nodes.pop().expect("two nodes");
+    let mut receiving = nodes.pop().expect("a 1-cube has two nodes");
+    let mut sending = nodes.pop().expect("a 1-cube has two nodes");
     let base = Instant::now();
     let (sent, received) = std::thread::scope(|s| {
         let receiver = s.spawn(move || receive_all(&mut receiving, base));

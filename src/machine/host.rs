@@ -453,7 +453,7 @@ impl Plan {
             .iter()
             .enumerate()
             .max_by_key(|(_, b)| **b)
-            .expect("at least one node");
+            .expect("a plan has a share per node, and a hypercube has 2^d >= 1 nodes");
         let rays = (n + 1) * self.path_bytes;
         // Rounded up, so that the memory named is enough.
         let need = format!(
@@ -562,7 +562,7 @@ pub fn render_adaptive(
         }
         Ok::<Film, Error>(film)
     })?;
-    let mut stats = total.expect("at least one pass");
+    let mut stats = total.expect("aa::render_adaptive returns Ok only after its first pass");
     stats.wall_seconds = start.elapsed().as_secs_f64();
     stats.build_seconds = plan.cells.stats.build_seconds;
     stats.prepass_seconds = plan.prepass_seconds;

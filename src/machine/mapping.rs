@@ -286,14 +286,20 @@ fn prepass(
                             }
                         }
                     }
-                    let work = tracer.recorded_work().expect("recording").clone();
+                    let work = tracer
+                        .recorded_work()
+                        .expect("record_work or record_work_for was called above")
+                        .clone();
                     (work, tracer.recorded_moves())
                 })
             })
             .collect();
         handles
             .into_iter()
-            .map(|h| h.join().expect("a pre-pass thread"))
+            .map(|h| {
+                h.join()
+                    .expect("a pre-pass thread panicked (a bug, not bad input)")
+            })
             .collect()
     });
     let work = [0, 1].map(|r| {
@@ -497,7 +503,7 @@ fn refine(beside: &Beside, work: &[Vec<f64>; 2], owner: &mut [Vec<u16>; 2], d: u
     for _ in 0..8 * load.len() {
         let h = (0..load.len())
             .max_by(|&a, &b| load[a].total_cmp(&load[b]))
-            .expect("a node");
+            .expect("loads has 2^d >= 1 nodes");
         let mut best: Option<(usize, usize, u16, f64)> = None;
         for r in 0..2 {
             for (s, &o) in owner[r].iter().enumerate() {

@@ -778,7 +778,10 @@ impl<'a> Node<'a> {
                         hops: 0,
                         path: leaf,
                     })?;
-                    let job = path.stack.pop().expect("a waiting ray");
+                    let job = path
+                        .stack
+                        .pop()
+                        .expect("checked non-empty above, and routing the leaf does not touch it");
                     path.active = Active {
                         job,
                         number: path.active.number + 1,

@@ -102,7 +102,9 @@ pub fn channels(d: u32, capacity: usize) -> (ChannelHost, Vec<ChannelNode>) {
         // Node i's sender across k feeds node i ^ 2^k.
         let mut rx_of: Vec<Option<Receiver<Vec<u8>>>> = rx_of.into_iter().map(Some).collect();
         for i in 0..n {
-            let from = rx_of[i ^ (1 << k)].take().expect("each link once");
+            let from = rx_of[i ^ (1 << k)]
+                .take()
+                .expect("i -> i ^ 2^k pairs the nodes, so each receiver is taken once");
             nodes[i].from.push(from);
         }
     }

@@ -166,7 +166,7 @@ pub fn measure(
                     .abs()
                     .total_cmp(&(b.wall_seconds - wall).abs())
             })
-            .expect("at least one run");
+            .expect("repeat.max(1) runs were made");
         let (w0, v0) = rows
             .first()
             .map_or((wall, virt), |r| (r.wall_seconds, r.virtual_seconds));
