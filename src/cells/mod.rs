@@ -184,6 +184,12 @@ pub struct CellOptions {
     /// `SUPER_CELLS_PER_NODE` per node, so that its mapping can balance
     /// them (a super cell is never split over nodes); one node needs none.
     pub min_super_cells: usize,
+    /// Leaves out the shadow cache (`CellTracer::walk_shadow`), for
+    /// experiments and for tests of the machine's pre-pass: the cache's
+    /// hits depend on the order rays reach a node, which the pre-pass can
+    /// only approach, and without it the pre-pass predicts every node's
+    /// work exactly.
+    pub no_shadow_cache: bool,
 }
 
 /// Front super cells per node the machine asks the build for. The cost
@@ -411,7 +417,7 @@ impl CellStructure {
             subtrees,
             origin,
             origin_count: tree.nodes.len(),
-            shadows: ShadowFacts::of(scene, &minimal),
+            shadows: ShadowFacts::of(scene, &minimal, !opts.no_shadow_cache),
             clip: WideClip::of(scene, &prim_box, &scene_box),
             leaf_span,
             subtree_leaves,
@@ -594,6 +600,8 @@ pub struct ShadowFacts {
     /// light through, or None when there are more than `MAX_GLASS`: a
     /// shadow ray that meets none of them meets only opaque surfaces.
     pub glass: Option<Vec<Aabb>>,
+    /// Whether walks keep the shadow cache (`CellOptions::no_shadow_cache`).
+    pub cache: bool,
 }
 
 /// Transmitting primitives up to which shadow rays are checked against
@@ -704,7 +712,7 @@ fn outside_the_solid(scene: &Scene, minimal: &[Aabb], p: crate::geom::Vec3) -> b
 }
 
 impl ShadowFacts {
-    fn of(scene: &Scene, minimal: &[Aabb]) -> ShadowFacts {
+    fn of(scene: &Scene, minimal: &[Aabb], cache: bool) -> ShadowFacts {
         let tree = &scene.tree;
         // Top-down over the children-before-parents arena: from the root,
         // through unions and assemblies only.
@@ -743,6 +751,7 @@ impl ShadowFacts {
             exposed,
             clear_lights,
             glass: (glass.len() <= MAX_GLASS).then_some(glass),
+            cache,
         }
     }
 

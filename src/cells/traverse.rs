@@ -678,7 +678,7 @@ impl<'a> CellTracer<'a> {
             shadow_walk: false,
             occluding: false,
             light: 0,
-            blockers: if scene.lights.len() <= SHADOW_CACHE_LIGHTS {
+            blockers: if cs.shadows.cache && scene.lights.len() <= SHADOW_CACHE_LIGHTS {
                 vec![None; scene.lights.len()]
             } else {
                 Vec::new()
@@ -875,15 +875,20 @@ fn passes_through(hits: &PrimHits, p: PrimId, t_lo: f64, t_end: f64) -> Option<H
     })
 }
 
-/// Whether one primitive has a crossing with `t_lo <= t <= t_end`: a
-/// boundary the walk over that range might find.
+/// Whether one primitive has a crossing with `t_lo <= t <= t_end` (for a
+/// surface, `t_lo < t`): a boundary the walk over that range might find.
+/// A surface crossed at `t_lo` exactly has no inside to change anything
+/// after it, and the walk reports only hits after `t_lo`; a solid entered
+/// there may still hold the ray in it (`passes_through`).
 #[inline]
 fn crosses(hits: &PrimHits, t_lo: f64, t_end: f64) -> bool {
     let on = |c: &Crossing| c.t >= t_lo && c.t <= t_end;
     match hits {
         PrimHits::Miss => false,
         PrimHits::Solid { enter, exit } => on(enter) || on(exit),
-        PrimHits::Sheet { hits, count } => hits[..*count as usize].iter().any(on),
+        PrimHits::Sheet { hits, count } => hits[..*count as usize]
+            .iter()
+            .any(|c| c.t > t_lo && c.t <= t_end),
     }
 }
 
@@ -1387,6 +1392,18 @@ impl CellTracer<'_> {
                     !(met && crosses(&self.hits[c.id as usize], t_min, t_max)),
                     false,
                 )
+            }
+            // A ray leaving the ground (a shadow or reflected ray from
+            // it): what the test would find is behind the ray's start,
+            // known from a part of the test (`Primitive::surely_behind`).
+            // Its mailbox says so to the cells the walk still finds it in,
+            // as its crossings would: none from `t_min` on (a surface's at
+            // `t_min` exactly is no hit after it, nor has it an inside).
+            None if c.prim.surely_behind(ray, t_min) => {
+                if c.id != NOT_HELD {
+                    self.mailboxes[c.id as usize] = Mailbox::missed(self.ray_id);
+                }
+                (true, false)
             }
             None => {
                 self.counters.intersection_tests += 1;

@@ -156,6 +156,29 @@ impl Primitive {
         }
     }
 
+    /// True only when every crossing `intersect` would report lies before
+    /// `t_min` (a solid's) or at or before it (a surface's, with `t_min ≥
+    /// 0`), decided by a part of the test's own arithmetic, so that the
+    /// answer is exact without the whole test. False says nothing. Covers
+    /// the grounds of the walk clip (`cells::WideClip`) seen from rays that
+    /// leave them: a box whose far face on some axis is behind `t_min`, and
+    /// a polygon with every vertex behind the ray's origin.
+    pub fn surely_behind(&self, ray: &Ray, t_min: f64) -> bool {
+        let local;
+        let ray = match &self.transform {
+            None => ray,
+            Some(m) => {
+                local = m.inverse_ray(ray);
+                &local
+            }
+        };
+        match &self.shape {
+            Shape::Box { min, max } => box_behind(ray, *min, *max, t_min),
+            Shape::Polygon(p) => t_min >= 0.0 && polygon_behind(ray, p),
+            _ => false,
+        }
+    }
+
     /// The unit world normal at `ray.at(t)` on `part`: outward for solids;
     /// for surfaces the geometric normal of a fixed orientation
     /// (`(b − a) × (c − a)` for triangles, the vertex order for polygons).
@@ -774,6 +797,43 @@ fn box_hits(ray: &Ray, min: Vec3, max: Vec3) -> PrimHits {
     solid(enter, exit)
 }
 
+/// `Primitive::surely_behind` for a box: on some axis the ray is not
+/// parallel to, the far face's `t`, computed as `box_hits` computes it,
+/// is below `t_min`. `box_hits`' exit is at most that `t` and its entry
+/// before its exit, so both are below `t_min`.
+#[inline]
+fn box_behind(ray: &Ray, min: Vec3, max: Vec3, t_min: f64) -> bool {
+    (0..3).any(|axis| {
+        let (o, d) = (ray.origin[axis], ray.dir[axis]);
+        let far = if d > 0.0 {
+            (max[axis] - o) / d
+        } else if d < 0.0 {
+            (min[axis] - o) / d
+        } else {
+            return false;
+        };
+        far < t_min
+    })
+}
+
+/// `Primitive::surely_behind` for a polygon: every vertex's ray-space `z`
+/// (`Shear::project`, the value the triangle test weighs) is negative. A
+/// hit's `t` is the sum of those `z` weighted by edge functions of one sign
+/// (or zero), over their sum: every term is of the sign opposite to the
+/// divisor's, and rounding keeps signs, so `t ≤ 0` (it may be `−0.0` or
+/// `+0.0` where products underflow: hence "at or before" `t_min ≥ 0`).
+#[inline]
+fn polygon_behind(ray: &Ray, p: &Polygon) -> bool {
+    // `Shear::new`'s axis and scale, and `Shear::project`'s `z`, with the
+    // same operations (the rest of the shear is not needed here).
+    let Some((kz, dz)) = Shear::depth_axis(ray) else {
+        // `polygon_hits` reports nothing.
+        return true;
+    };
+    let (sz, o) = (1.0 / dz, ray.origin.to_array()[kz]);
+    p.vertices.iter().all(|v| sz * (v.to_array()[kz] - o) < 0.0)
+}
+
 /// The interval of `t` between the planes through `base` and `top`
 /// perpendicular to the unit axis `a`, closed, with the planes' parts.
 /// `None` when empty. A ray parallel to the planes (case 4) is between them
@@ -967,14 +1027,20 @@ struct Shear {
 }
 
 impl Shear {
+    /// The dominant axis of the ray's direction and its component, unless
+    /// the direction is zero (or NaN).
     #[inline]
-    fn new(ray: &Ray) -> Option<Shear> {
+    fn depth_axis(ray: &Ray) -> Option<(usize, f64)> {
         let d = ray.dir;
         let kz = d.abs().max_position();
         let dz = d[kz];
-        if !(dz.abs() > 0.0) {
-            return None;
-        }
+        (dz.abs() > 0.0).then_some((kz, dz))
+    }
+
+    #[inline]
+    fn new(ray: &Ray) -> Option<Shear> {
+        let d = ray.dir;
+        let (kz, dz) = Shear::depth_axis(ray)?;
         let (mut kx, mut ky) = ((kz + 1) % 3, (kz + 2) % 3);
         if dz < 0.0 {
             std::mem::swap(&mut kx, &mut ky);

@@ -1438,3 +1438,92 @@ fn random_rays_agree_with_point_membership() {
     assert!(spans > 1000, "only {spans} spans");
     assert!(normals > 2 * spans - 100, "only {normals} normals checked");
 }
+
+/// `Primitive::surely_behind` (the walk clip's shortcut) may only answer
+/// true where `intersect` finds nothing after `t_min`: boxes and polygons,
+/// with and without transforms, seen from rays leaving them (where it
+/// should answer true) and from anywhere.
+#[test]
+fn surely_behind_never_hides_a_crossing() {
+    let mut rng = Rng(0x2545_F491_4F6C_DD1D);
+    let (mut leaving, mut behind) = (0, 0);
+    for case in 0..6000 {
+        let base = rng.vec(-1.0, 1.0);
+        let size = rng.vec(0.1, 3.0);
+        let shape = if case % 2 == 0 {
+            Shape::Box {
+                min: base,
+                max: base + size,
+            }
+        } else {
+            let (sx, sy) = (size.x, size.y);
+            let quad = vec![
+                base,
+                base + v(sx, 0.0, 0.0),
+                base + v(sx, sy, 0.0),
+                base + v(0.0, sy, 0.0),
+            ];
+            Shape::Polygon(Polygon::from_vertices(quad).expect("a rectangle"))
+        };
+        let m = if case % 4 < 2 {
+            Affine::IDENTITY
+        } else {
+            Affine::from_srt(
+                rng.vec(0.3, 2.0),
+                rng.vec(-180.0, 180.0),
+                rng.vec(-1.0, 1.0),
+            )
+        };
+        let p = placed(shape, &m);
+        // A ray leaving the top face (z = base.z + size.z for a box, the
+        // plane for a polygon) upward, as a shadow or reflected ray leaves
+        // a ground, or a ray from anywhere.
+        let top = if p.is_solid() {
+            base.z + size.z
+        } else {
+            base.z
+        };
+        let on = v(
+            base.x + size.x * rng.next(),
+            base.y + size.y * rng.next(),
+            top,
+        );
+        let (o, d) = if case % 3 == 0 {
+            let target = m.point(base + rng.vec(-1.0, 3.0));
+            let o = target + rng.vec(-6.0, 6.0);
+            (o, (target - o) * rng.range(0.05, 20.0))
+        } else {
+            leaving += 1;
+            let up = v(
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+                rng.range(0.05, 1.0),
+            );
+            (
+                m.point(on + v(0.0, 0.0, 1e-9 * (1.0 + top.abs()))),
+                m.vector(up),
+            )
+        };
+        let ray = Ray::new(o, d);
+        let t_min = if case % 5 == 0 {
+            rng.range(0.0, 2.0)
+        } else {
+            0.0
+        };
+        if !p.surely_behind(&ray, t_min) {
+            continue;
+        }
+        behind += usize::from(case % 3 != 0);
+        for c in crossings(&p.intersect(&ray)) {
+            let before = if p.is_solid() {
+                c.t < t_min
+            } else {
+                c.t <= t_min
+            };
+            assert!(before, "{p:?} hides {c:?} after {t_min} from {ray:?}");
+        }
+    }
+    // Most rays leaving a face are told apart without the test: the
+    // shortcut is worth its place.
+    assert!(behind * 2 > leaving, "{behind} of {leaving} leaving rays");
+}
