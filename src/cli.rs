@@ -64,6 +64,9 @@ pub struct MachineArgs {
     /// Envelopes (a slice's messages for one link) each link holds before its sender must wait.
     #[arg(long, default_value_t = machine::DEFAULT_CAPACITY)]
     pub link_capacity: usize,
+    /// Leave out the shadow cache (each node's last blocker per light, tried before a shadow ray walks).
+    #[arg(long)]
+    pub no_shadow_cache: bool,
     /// Test only: node N fails after K paths (N:K).
     #[arg(long, hide = true)]
     pub inject_fault: Option<String>,
@@ -97,6 +100,7 @@ impl MachineArgs {
         let mut o = MachineOptions::new(width, height, spp);
         o.cells = CellOptions {
             choice: bsp,
+            no_shadow_cache: self.no_shadow_cache,
             ..Default::default()
         };
         o.mapping = self.mapping;

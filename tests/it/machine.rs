@@ -137,6 +137,20 @@ fn the_pre_pass_predicts_the_work_with_the_shadow_cache_roughly() {
     assert!(worst <= 0.15, "{worst}");
 }
 
+/// The shadow cache is exact: the same image without it, from other work.
+#[test]
+fn the_shadow_cache_changes_the_work_not_the_image() {
+    let scene = load_scene(&repo("scenes/sphereflake2.nff")).unwrap();
+    let mut o = MachineOptions::new(64, 64, 1);
+    let (with, a, _) = machine::render(&scene, &topo(3), &o, &|_| {}).unwrap();
+    o.cells.no_shadow_cache = true;
+    let (without, b, _) = machine::render(&scene, &topo(3), &o, &|_| {}).unwrap();
+    assert_eq!(with.sums(), without.sums());
+    let tests =
+        |s: &machine::MachineStats| s.per_node.iter().map(|n| n.intersection_tests).sum::<u64>();
+    assert_ne!(tests(&a), tests(&b));
+}
+
 /// The largest relative difference between a node's work predicted by the
 /// pre-pass and counted by the machine (sphereflake level 2, 96x96, d = 3).
 fn pre_pass_error(no_shadow_cache: bool) -> f64 {
