@@ -14,6 +14,9 @@ struct Frame {
     next_child: usize,
     /// Index in `results` of this node's first child's result.
     base: usize,
+    /// The last child entered was an operator, whose result is to be
+    /// looked at when its frame is done.
+    pending: bool,
 }
 
 /// Reusable workspace for `evaluate`. One per thread (or node).
@@ -109,36 +112,61 @@ impl Evaluator {
     {
         self.top = 0;
         self.frames.clear();
-        self.enter(tree, root, &mut leaf, &mut op_culled);
+        match self.enter(tree, root, &mut leaf, &mut op_culled) {
+            Some(true) => {
+                self.push_result();
+                return &self.results[0];
+            }
+            Some(false) => return &self.results[0],
+            None => {}
+        }
         while let Some(f) = self.frames.last_mut() {
             let CsgNode::Op { op, first, len } = tree.nodes[f.node.index()] else {
                 unreachable!("only operators get frames")
             };
-            let children = &tree.children[first as usize..(first + len) as usize];
-            if f.next_child > 0 {
-                let last_empty = self.results[self.top - 1].is_empty();
-                let first = f.next_child == 1;
-                if last_empty {
-                    // An empty operand empties an intersection, and an empty
-                    // first operand empties a difference: skip the rest.
-                    if op == Op::Intersection || (op == Op::Difference && first) {
-                        let base = f.base;
+            let base = f.base;
+            // An empty operand empties an intersection, and an empty first
+            // operand empties a difference: the rest is skipped. Empty
+            // operands of unions and subtrahends change nothing and are
+            // not kept.
+            let empties =
+                |child: usize| op == Op::Intersection || (op == Op::Difference && child == 0);
+            if f.pending {
+                // The last child was an operator: its result is on top.
+                f.pending = false;
+                let child = f.next_child - 1;
+                if self.results[self.top - 1].is_empty() {
+                    if empties(child) {
                         self.frames.pop();
                         self.top = base;
                         self.push_result();
                         continue;
                     }
-                    // Empty operands of unions and subtrahends change nothing.
                     self.top -= 1;
                 }
             }
-            if f.next_child < children.len() {
-                let c = children[f.next_child];
+            let f = self.frames.last_mut().expect("the frame looked at above");
+            if f.next_child < len as usize {
+                let child = f.next_child;
+                let c = tree.children[first as usize + child];
                 f.next_child += 1;
-                self.enter(tree, c, &mut leaf, &mut op_culled);
+                match self.enter(tree, c, &mut leaf, &mut op_culled) {
+                    // A leaf, or a culled operator, with nothing: never kept.
+                    Some(true) if empties(child) => {
+                        self.frames.pop();
+                        self.top = base;
+                        self.push_result();
+                    }
+                    Some(_) => {}
+                    None => {
+                        // Its frame is on top now; its result is looked at
+                        // when it is done.
+                        let n = self.frames.len();
+                        self.frames[n - 2].pending = true;
+                    }
+                }
                 continue;
             }
-            let base = f.base;
             self.frames.pop();
             let n = self.top - base;
             if n == 0 {
@@ -164,8 +192,17 @@ impl Evaluator {
         &self.results[0]
     }
 
+    /// Enters `node`: a leaf's crossings, or nothing for an operator
+    /// `op_culled` culls, are its result at once (`Some(empty)`; an empty
+    /// result is not pushed); any other operator gets a frame (`None`).
     #[inline]
-    fn enter<L, O>(&mut self, tree: &CsgTree, node: NodeId, leaf: &mut L, op_culled: &mut O)
+    fn enter<L, O>(
+        &mut self,
+        tree: &CsgTree,
+        node: NodeId,
+        leaf: &mut L,
+        op_culled: &mut O,
+    ) -> Option<bool>
     where
         L: FnMut(NodeId, PrimId) -> PrimHits,
         O: FnMut(NodeId) -> bool,
@@ -173,18 +210,28 @@ impl Evaluator {
         match tree.nodes[node.index()] {
             CsgNode::Leaf(p) => {
                 let hits = leaf(node, p);
+                if matches!(hits, PrimHits::Miss) {
+                    return Some(true);
+                }
                 let out = self.push_result();
                 push_prim_hits(out, p, &hits);
+                if out.is_empty() {
+                    self.top -= 1;
+                    return Some(true);
+                }
+                Some(false)
             }
             CsgNode::Op { .. } => {
                 if op_culled(node) {
-                    self.push_result();
+                    Some(true)
                 } else {
                     self.frames.push(Frame {
                         node,
                         next_child: 0,
                         base: self.top,
-                    })
+                        pending: false,
+                    });
+                    None
                 }
             }
         }
