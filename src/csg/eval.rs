@@ -120,49 +120,45 @@ impl Evaluator {
             Some(false) => return &self.results[0],
             None => {}
         }
-        while let Some(f) = self.frames.last_mut() {
-            let CsgNode::Op { op, first, len } = tree.nodes[f.node.index()] else {
+        while let Some(&Frame {
+            node,
+            next_child,
+            base,
+            pending,
+        }) = self.frames.last()
+        {
+            let CsgNode::Op { op, first, len } = tree.nodes[node.index()] else {
                 unreachable!("only operators get frames")
             };
-            let base = f.base;
             // An empty operand empties an intersection, and an empty first
             // operand empties a difference: the rest is skipped. Empty
             // operands of unions and subtrahends change nothing and are
             // not kept.
             let empties =
                 |child: usize| op == Op::Intersection || (op == Op::Difference && child == 0);
-            if f.pending {
+            let fi = self.frames.len() - 1;
+            if pending {
                 // The last child was an operator: its result is on top.
-                f.pending = false;
-                let child = f.next_child - 1;
+                self.frames[fi].pending = false;
                 if self.results[self.top - 1].is_empty() {
-                    if empties(child) {
-                        self.frames.pop();
-                        self.top = base;
-                        self.push_result();
+                    if empties(next_child - 1) {
+                        self.close_empty(base);
                         continue;
                     }
                     self.top -= 1;
                 }
             }
-            let f = self.frames.last_mut().expect("the frame looked at above");
-            if f.next_child < len as usize {
-                let child = f.next_child;
-                let c = tree.children[first as usize + child];
-                f.next_child += 1;
+            if next_child < len as usize {
+                let c = tree.children[first as usize + next_child];
+                self.frames[fi].next_child += 1;
                 match self.enter(tree, c, &mut leaf, &mut op_culled) {
                     // A leaf, or a culled operator, with nothing: never kept.
-                    Some(true) if empties(child) => {
-                        self.frames.pop();
-                        self.top = base;
-                        self.push_result();
-                    }
+                    Some(true) if empties(next_child) => self.close_empty(base),
                     Some(_) => {}
                     None => {
                         // Its frame is on top now; its result is looked at
                         // when it is done.
-                        let n = self.frames.len();
-                        self.frames[n - 2].pending = true;
+                        self.frames[fi].pending = true;
                     }
                 }
                 continue;
@@ -185,6 +181,13 @@ impl Evaluator {
             // of one child, or a difference left with only its first).
         }
         &self.results[0]
+    }
+
+    /// Ends the top frame with an empty result (an operand emptied it).
+    fn close_empty(&mut self, base: usize) {
+        self.frames.pop();
+        self.top = base;
+        self.push_result();
     }
 
     /// The result of the last evaluation (until the next one).
