@@ -19,7 +19,7 @@ use crate::cells::{CellOptions, CellStructure};
 use crate::error::{Error, Result};
 use crate::render::{self, AaSummary, Adaptive, Pass, RenderStats, Sampling, TraceCounters};
 use crate::scene::Scene;
-use crate::trace::{Film, RayCounts, RayJob};
+use crate::trace::{Film, RayCounts, RayJob, prefault};
 
 /// Messages a link holds by default.
 pub const DEFAULT_CAPACITY: usize = 16;
@@ -738,7 +738,7 @@ impl Run {
     fn new(width: u32, height: u32, spp: u32, nodes: usize, model: LinkModel) -> Self {
         let pixels = width as usize * height as usize;
         let samples = pixels * spp.max(1) as usize;
-        Run {
+        let mut run = Run {
             film: Film::new(width, height),
             spp: spp.max(1) as u64,
             nodes,
@@ -758,7 +758,12 @@ impl Run {
             credit: vec![0; nodes],
             outbox: vec![Vec::new(); nodes],
             pieces: HashMap::new(),
-        }
+        };
+        // Before the node threads start (`prefault`).
+        run.film.prefault();
+        prefault(&mut run.seen);
+        prefault(&mut run.traced);
+        run
     }
 
     fn send(&mut self, host: &mut dyn HostLinks, node: u16, body: &ToNode) -> Result<()> {
