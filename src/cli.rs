@@ -125,7 +125,8 @@ pub struct ScaleArgs {
     /// Dimensions to run, as a range A..B (inclusive) or a list 0,2,5.
     #[arg(long, default_value = "0..5")]
     pub dims: String,
-    /// Runs per dimension; the median is reported.
+    /// Rounds of runs, each round every dimension once; times are medians,
+    /// speedups the median of each round's ratio.
     #[arg(long, default_value_t = 1)]
     pub repeat: u32,
     /// Folder for scaling.csv and scaling.png (created if missing).

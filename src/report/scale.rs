@@ -1,6 +1,7 @@
 //! The scaling experiment (`hypercast scale`): one machine render per
-//! hypercube dimension, with the balanced mapping (`--repeat` times, the
-//! median kept) and once with the naive equal-area mapping, so that the
+//! hypercube dimension, with the balanced mapping (`--repeat` rounds of
+//! every dimension; times are medians, speedups the median of each
+//! round's ratio) and once with the naive equal-area mapping, so that the
 //! load balance can be judged; a table, `scaling.csv` and `scaling.png`
 //! (speedup and efficiency, wall and virtual, against node count). Every
 //! render's image is checked to equal the first one's, bit for bit.
@@ -21,7 +22,9 @@ use crate::trace::Film;
 pub struct ScaleRow {
     pub dimension: u32,
     pub nodes: usize,
-    /// Medians over the repeats (balanced mapping).
+    /// Medians over the repeats (balanced mapping); speedups (and so
+    /// efficiencies) are the median over the rounds of the ratio to the
+    /// first dimension's run of the same round.
     pub wall_seconds: f64,
     pub virtual_seconds: f64,
     pub speedup_wall: f64,
@@ -137,21 +140,34 @@ pub fn measure(
         }
         Ok(())
     };
-    for &d in dims {
-        let t = topo.clone().with_overrides(Some(d), None)?;
-        let mut runs: Vec<MachineStats> = Vec::new();
-        for _ in 0..repeat.max(1) {
-            let (film, stats, _) = machine::render(scene, &t, opts, &|_| {})?;
+    // Rounds, not dimensions, outermost: each round renders every
+    // dimension once, so the runs compared in a speedup are minutes apart
+    // at most, not the whole experiment. The host's speed drifts by a
+    // fifth over a minute on a shared machine, and dimension after
+    // dimension that drift went straight into the ratios.
+    let machines: Vec<Topology> = dims
+        .iter()
+        .map(|&d| topo.clone().with_overrides(Some(d), None))
+        .collect::<Result<_>>()?;
+    let mut runs: Vec<Vec<MachineStats>> = vec![Vec::new(); dims.len()];
+    for _ in 0..repeat.max(1) {
+        for ((&d, t), runs) in dims.iter().zip(&machines).zip(&mut runs) {
+            let (film, stats, _) = machine::render(scene, t, opts, &|_| {})?;
             check(&film, d)?;
             runs.push(stats);
             done += 1;
             progress(done, total);
         }
-        let naive = MachineOptions {
-            mapping: Mapping::EqualArea,
-            ..opts.clone()
-        };
-        let (film, eq, _) = machine::render(scene, &t, &naive, &|_| {})?;
+    }
+    let naive = MachineOptions {
+        mapping: Mapping::EqualArea,
+        ..opts.clone()
+    };
+    let Some(base) = runs.first() else {
+        return Ok(rows);
+    };
+    for ((&d, t), runs) in dims.iter().zip(&machines).zip(&runs) {
+        let (film, eq, _) = machine::render(scene, t, &naive, &|_| {})?;
         check(&film, d)?;
         done += 1;
         progress(done, total);
@@ -167,22 +183,30 @@ pub fn measure(
                     .total_cmp(&(b.wall_seconds - wall).abs())
             })
             .expect("repeat.max(1) runs were made");
-        let (w0, v0) = rows
-            .first()
-            .map_or((wall, virt), |r| (r.wall_seconds, r.virtual_seconds));
-        let n0 = rows.first().map_or(1usize << d, |r| r.nodes) as f64;
+        // Speedups are the median of each round's ratio to the first
+        // dimension's run of the same round.
+        let ratio = |of: fn(&MachineStats) -> f64| {
+            median(
+                runs.iter()
+                    .zip(base)
+                    .map(|(r, r0)| of(r0) / of(r))
+                    .collect(),
+            )
+        };
+        let (speedup_wall, speedup_virtual) =
+            (ratio(|r| r.wall_seconds), ratio(|r| r.virtual_seconds));
+        let scale = (1usize << d) as f64 / (1usize << dims[0]) as f64;
         let nodes = 1usize << d;
-        let scale = nodes as f64 / n0;
         let structure_bytes: u64 = rep.per_node.iter().map(|n| n.structure_bytes).sum();
         rows.push(ScaleRow {
             dimension: d,
             nodes,
             wall_seconds: wall,
             virtual_seconds: virt,
-            speedup_wall: w0 / wall,
-            efficiency_wall: w0 / wall / scale,
-            speedup_virtual: v0 / virt,
-            efficiency_virtual: v0 / virt / scale,
+            speedup_wall,
+            efficiency_wall: speedup_wall / scale,
+            speedup_virtual,
+            efficiency_virtual: speedup_virtual / scale,
             messages: rep.messages,
             message_bytes: rep.message_bytes,
             hops: rep.hops,

@@ -578,6 +578,8 @@ fn scale_writes_the_table_csv_and_plot() {
             path_str(&scene),
             "--dims",
             "0..2",
+            "--repeat",
+            "2",
             "--width",
             "40",
             "--height",
@@ -623,6 +625,19 @@ fn scale_writes_the_table_csv_and_plot() {
         assert!(num(r, "peak_over_budget") <= 1.0);
         let per_ray = num(r, "message_bytes") / num(r, "rays");
         assert!((per_ray - num(r, "bytes_per_ray")).abs() < 0.06, "{csv}");
+        // Speedups are against the first dimension's runs, efficiency is
+        // speedup per node.
+        for (speedup, efficiency) in [
+            ("speedup_wall", "efficiency_wall"),
+            ("speedup_virtual", "efficiency_virtual"),
+        ] {
+            // (Both printed to 3 decimals.)
+            let (s, e, n) = (num(r, speedup), num(r, efficiency), (1 << d) as f64);
+            assert!(s > 0.0 && (e * n - s).abs() <= 0.001 * n, "{csv}");
+            if d == 0 {
+                assert_eq!(s, 1.0, "{csv}");
+            }
+        }
     }
     // One node holds the whole structure; more nodes hold more of it
     // together (every one the skeleton), and send rays to each other.
