@@ -93,9 +93,9 @@ pub struct RegionCells {
     /// Per super cell, what the walk reads (the partition's leaves in a
     /// compact copy).
     pub supers: Vec<SuperCell>,
-    /// In a node's share (`CellStructure::restrict`), for each cell held
-    /// elsewhere (in the order of its `REMOTE + i`), the hull of its
-    /// subtree's leaves' culling boxes,
+    /// In a node's share (`CellStructure::restrict`), for each subtree of
+    /// the cells held elsewhere (a cell's `REMOTE + i` names its hull), the
+    /// hull of the subtree's leaves' culling boxes,
     /// quantised outwards on the scene box (`share::Hull`); empty on a
     /// whole structure. A ray whose part in such a cell misses the hull
     /// cannot meet anything there, so the walk goes on without sending the

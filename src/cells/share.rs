@@ -2,13 +2,15 @@
 //! 9: the cells distributed over the nodes of a hypercube).
 //!
 //! A node holds the *skeleton* of the whole structure, which is what the
-//! walk between cells reads (the BSP, the super cells' rectangles and
-//! corner pointers, every cell's depth slab) and which doubles as the
+//! walk between cells reads (the super cells' rectangles and corner
+//! pointers, every cell's depth slab) and which doubles as the
 //! cell-to-node map, but the *content* (CSG subtrees and the primitives
 //! they reference) only of the cells it owns. A cell with content held
-//! elsewhere is marked `REMOTE`: a walk stops there and the ray moves to
-//! the owner. Empty cells are walked by whoever holds the ray, so rays
-//! cross empty space without a message.
+//! elsewhere is marked `REMOTE`, with the hull of that content (one per
+//! subtree, shared by the cells it serves): a walk whose ray meets the
+//! hull stops there and the ray moves to the owner. Empty cells are
+//! walked by whoever holds the ray, so rays cross empty space without a
+//! message.
 
 use std::collections::BTreeMap;
 
@@ -110,6 +112,9 @@ impl CellStructure {
         for (r, hulls) in regions.iter_mut().zip(&hulls.0) {
             let region = r.region;
             r.remote_hull = Vec::new();
+            // A cell's hull is its subtree's (`cell_hulls`), so cells held
+            // elsewhere with the same subtree share one.
+            let mut hull_of: BTreeMap<u32, u32> = BTreeMap::new();
             for s in 0..r.supers.len() as u32 {
                 let owned = owns(region, s);
                 for k in r.cells_of(s) {
@@ -118,8 +123,11 @@ impl CellStructure {
                         continue;
                     }
                     if !owned {
-                        r.subtree[k] = REMOTE + r.remote_hull.len() as u32;
-                        r.remote_hull.push(hulls[k]);
+                        let i = *hull_of.entry(t).or_insert_with(|| {
+                            r.remote_hull.push(hulls[k]);
+                            (r.remote_hull.len() - 1) as u32
+                        });
+                        r.subtree[k] = REMOTE + i;
                         continue;
                     }
                     r.subtree[k] = self.renumber_subtree(
@@ -383,5 +391,48 @@ mod tests {
         assert!(contains(&h, &flat) && h.min.z == f64::NEG_INFINITY);
         assert_eq!(Hull::around(&Aabb::EMPTY, &scene), Hull::EMPTY);
         assert_eq!(Hull::EMPTY.bounds(&scene), None);
+    }
+
+    /// A share keeps one hull per subtree held elsewhere, not one per cell
+    /// (a cell's hull is its subtree's), and every remote cell names the
+    /// hull the whole structure has for that cell.
+    #[test]
+    fn a_share_keeps_one_hull_per_remote_subtree() {
+        let model = crate::r#gen::sphereflake::sphereflake(2);
+        let scene = crate::scene::load::compile_model(&model, std::path::Path::new("flake"))
+            .expect("the sphereflake compiles")
+            .0;
+        let options = crate::cells::CellOptions {
+            min_super_cells: 32,
+            ..Default::default()
+        };
+        let cs = CellStructure::build(&scene, 128, 128, options);
+        let hulls = cs.cell_hulls();
+        let (share, _) = cs.restrict_with(&scene, &|_, s| s % 3 == 0, &hulls);
+        let mut shared = 0;
+        for (r, (whole, part)) in cs.regions.iter().zip(&share.regions).enumerate() {
+            // Remote index -> the whole structure's subtree it stands for.
+            let mut named = BTreeMap::new();
+            let mut remote_cells = 0;
+            for (k, &t) in part.subtree.iter().enumerate() {
+                if !super::super::is_remote(t) {
+                    continue;
+                }
+                remote_cells += 1;
+                let i = t - REMOTE;
+                let root = *named.entry(i).or_insert(whole.subtree[k]);
+                assert_eq!(root, whole.subtree[k], "hull {i} serves two subtrees");
+                assert_eq!(part.remote_hull[i as usize], hulls.0[r][k]);
+            }
+            // One hull per distinct subtree: no two indices for one.
+            let roots: std::collections::BTreeSet<u32> = named.values().copied().collect();
+            assert_eq!(roots.len(), named.len());
+            assert_eq!(part.remote_hull.len(), named.len());
+            shared += remote_cells - named.len();
+        }
+        assert!(
+            shared > 0,
+            "the test scene has no subtree serving two remote cells"
+        );
     }
 }
