@@ -21,10 +21,14 @@ pub const FIXED_ONE: i64 = 1 << 32;
 /// film while the node threads run, and a 1024x1024 film is 6,000 pages:
 /// on the 2-core host this cost 14% of the CPU of a render at d = 1.
 /// Touched before the node threads start, the pages are mapped at once.
-pub fn prefault<T: Default>(v: &mut [T]) {
+///
+/// For a vector that holds default values only (a fresh `vec![0; n]`),
+/// which it writes again.
+pub fn prefault<T: Default + PartialEq>(v: &mut [T]) {
     const PAGE: usize = 4096;
     let step = (PAGE / std::mem::size_of::<T>().max(1)).max(1);
     for i in (0..v.len()).step_by(step) {
+        debug_assert!(v[i] == T::default(), "prefault overwrites a value");
         // Through `black_box`, the compiler cannot know the memory is
         // zero already and leave the store out.
         *std::hint::black_box(&mut v[i]) = T::default();
@@ -54,7 +58,7 @@ impl Film {
         }
     }
 
-    /// Makes the film's memory the process's own now (`prefault`).
+    /// Makes a new film's memory the process's own now (`prefault`).
     pub fn prefault(&mut self) {
         prefault(&mut self.sums);
     }
