@@ -151,10 +151,10 @@ pub fn measure(
         .collect::<Result<_>>()?;
     let mut runs: Vec<Vec<MachineStats>> = vec![Vec::new(); dims.len()];
     for _ in 0..repeat.max(1) {
-        for ((&d, t), runs) in dims.iter().zip(&machines).zip(&mut runs) {
+        for ((&d, t), of_d) in dims.iter().zip(&machines).zip(&mut runs) {
             let (film, stats, _) = machine::render(scene, t, opts, &|_| {})?;
             check(&film, d)?;
-            runs.push(stats);
+            of_d.push(stats);
             done += 1;
             progress(done, total);
         }
@@ -166,16 +166,16 @@ pub fn measure(
     let Some(base) = runs.first() else {
         return Ok(rows);
     };
-    for ((&d, t), runs) in dims.iter().zip(&machines).zip(&runs) {
+    for ((&d, t), of_d) in dims.iter().zip(&machines).zip(&runs) {
         let (film, eq, _) = machine::render(scene, t, &naive, &|_| {})?;
         check(&film, d)?;
         done += 1;
         progress(done, total);
-        let wall = median(runs.iter().map(|r| r.wall_seconds).collect());
-        let virt = median(runs.iter().map(|r| r.virtual_seconds).collect());
+        let wall = median(of_d.iter().map(|r| r.wall_seconds).collect());
+        let virt = median(of_d.iter().map(|r| r.virtual_seconds).collect());
         // Counts are the same every run but the busy times are not: the
         // run nearest the median wall time stands for the rest.
-        let rep = runs
+        let rep = of_d
             .iter()
             .min_by(|a, b| {
                 (a.wall_seconds - wall)
@@ -187,7 +187,7 @@ pub fn measure(
         // dimension's run of the same round.
         let ratio = |of: fn(&MachineStats) -> f64| {
             median(
-                runs.iter()
+                of_d.iter()
                     .zip(base)
                     .map(|(r, r0)| of(r0) / of(r))
                     .collect(),
@@ -195,8 +195,8 @@ pub fn measure(
         };
         let (speedup_wall, speedup_virtual) =
             (ratio(|r| r.wall_seconds), ratio(|r| r.virtual_seconds));
-        let scale = (1usize << d) as f64 / (1usize << dims[0]) as f64;
         let nodes = 1usize << d;
+        let scale = nodes as f64 / (1usize << dims[0]) as f64;
         let structure_bytes: u64 = rep.per_node.iter().map(|n| n.structure_bytes).sum();
         rows.push(ScaleRow {
             dimension: d,
