@@ -36,7 +36,7 @@ pub enum Command {
     Render(RenderArgs),
     /// Show the paper's subdivision of a scene: counts, memory, and an overlay picture.
     Inspect(InspectArgs),
-    /// Render once per hypercube dimension: speedup, efficiency, messages, imbalance.
+    /// Render once per hypercube dimension: speedup, efficiency and its factors, messages, imbalance.
     Scale(ScaleArgs),
     /// Error against run time: sweep samples per pixel, adaptive threshold and depth.
     Quality(quality::QualityArgs),

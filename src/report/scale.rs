@@ -58,6 +58,66 @@ pub struct ScaleRow {
     /// The same for the work the balanced mapping evens out: cells
     /// entered and `cells::TEST_WORK` per test (`machine::mapping`).
     pub imbalance_work: f64,
+    /// Where the virtual efficiency goes (`EfficiencyFactors`), medians
+    /// over the rounds.
+    pub factors: EfficiencyFactors,
+}
+
+/// A run's virtual efficiency against the first dimension's run of the
+/// same round, taken apart into three factors, so that a user can tell
+/// what distributing the work costs the modelled machine from what the
+/// emulation adds. For one pair of runs the efficiency is exactly
+/// `utilisation / base utilisation / (work_ratio * cost_ratio)` (the
+/// first run's utilisation is about 1: one node never waits).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EfficiencyFactors {
+    /// The work all nodes did (cells entered and `cells::TEST_WORK` per
+    /// intersection test, the units the balanced mapping evens out), over
+    /// the first run's: what distribution adds to the algorithm's work (a
+    /// ray that moves to another node resumes its walk there, past that
+    /// node's cold mailboxes).
+    pub work_ratio: f64,
+    /// The nodes' computing time (host CPU seconds) per unit of that work,
+    /// over the first run's. This is the emulation's, not the model's: the
+    /// node threads take turns in the host's caches and see rays from
+    /// everywhere instead of in pixel order, where a node of the modelled
+    /// machine has its own processor and memory.
+    pub cost_ratio: f64,
+    /// The share of the modelled machine's node time (nodes times virtual
+    /// seconds) that its nodes spent computing; the rest went to sending,
+    /// waiting (for paths in transit, for credit, for the bounded lag) and
+    /// idling at the end while the slowest node finished.
+    pub utilisation: f64,
+}
+
+impl EfficiencyFactors {
+    /// The factors of `run` against `base`, for a topology of compute speed
+    /// `speed` (virtual seconds are host seconds over it).
+    pub fn of(run: &MachineStats, base: &MachineStats, speed: f64) -> EfficiencyFactors {
+        let work = |r: &MachineStats| -> f64 {
+            r.per_node
+                .iter()
+                .map(|n| {
+                    (crate::cells::CELL_WORK * n.cells_visited
+                        + crate::cells::TEST_WORK * n.intersection_tests) as f64
+                })
+                .sum()
+        };
+        let busy = |r: &MachineStats| -> f64 { r.per_node.iter().map(|n| n.busy_seconds).sum() };
+        let (w, w0) = (work(run), work(base));
+        EfficiencyFactors {
+            work_ratio: w / w0,
+            cost_ratio: (busy(run) / w) / (busy(base) / w0),
+            utilisation: utilisation(run, speed),
+        }
+    }
+}
+
+/// The share of a run's node time (nodes times virtual seconds) its nodes
+/// spent computing (`EfficiencyFactors::utilisation`).
+fn utilisation(r: &MachineStats, speed: f64) -> f64 {
+    let busy: f64 = r.per_node.iter().map(|n| n.busy_seconds).sum();
+    busy / speed / (r.per_node.len() as f64 * r.virtual_seconds)
 }
 
 /// Parses `--dims`: `A..B` (inclusive) or a list `0,2,5`.
@@ -195,6 +255,17 @@ pub fn measure(
         };
         let (speedup_wall, speedup_virtual) =
             (ratio(|r| r.wall_seconds), ratio(|r| r.virtual_seconds));
+        let per_round: Vec<EfficiencyFactors> = of_d
+            .iter()
+            .zip(base)
+            .map(|(r, r0)| EfficiencyFactors::of(r, r0, t.compute_speed))
+            .collect();
+        let factor = |f: fn(&EfficiencyFactors) -> f64| median(per_round.iter().map(f).collect());
+        let factors = EfficiencyFactors {
+            work_ratio: factor(|f| f.work_ratio),
+            cost_ratio: factor(|f| f.cost_ratio),
+            utilisation: factor(|f| f.utilisation),
+        };
         let nodes = 1usize << d;
         let scale = nodes as f64 / (1usize << dims[0]) as f64;
         let structure_bytes: u64 = rep.per_node.iter().map(|n| n.structure_bytes).sum();
@@ -232,12 +303,13 @@ pub fn measure(
                 (crate::cells::CELL_WORK * n.cells_visited
                     + crate::cells::TEST_WORK * n.intersection_tests) as f64
             })),
+            factors,
         });
     }
     Ok(rows)
 }
 
-const HEADER: [&str; 24] = [
+const HEADER: [&str; 27] = [
     "dimension",
     "nodes",
     "wall_seconds",
@@ -262,9 +334,12 @@ const HEADER: [&str; 24] = [
     "structure_ratio",
     "imbalance_tests",
     "imbalance_work",
+    "work_ratio",
+    "cost_ratio",
+    "utilisation",
 ];
 
-fn fields(r: &ScaleRow) -> [String; 24] {
+fn fields(r: &ScaleRow) -> [String; 27] {
     [
         r.dimension.to_string(),
         r.nodes.to_string(),
@@ -293,6 +368,9 @@ fn fields(r: &ScaleRow) -> [String; 24] {
         format!("{:.3}", r.structure_ratio),
         format!("{:.3}", r.imbalance_tests),
         format!("{:.3}", r.imbalance_work),
+        format!("{:.3}", r.factors.work_ratio),
+        format!("{:.3}", r.factors.cost_ratio),
+        format!("{:.3}", r.factors.utilisation),
     ]
 }
 
@@ -309,7 +387,9 @@ pub fn csv(rows: &[ScaleRow]) -> String {
 
 /// The rows as an aligned text table.
 pub fn table(rows: &[ScaleRow]) -> String {
-    let cols = [0usize, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 19, 21];
+    let cols = [
+        0usize, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 19, 21, 24, 25, 26,
+    ];
     let cells: Vec<Vec<String>> = std::iter::once(HEADER.map(String::from).to_vec())
         .chain(rows.iter().map(|r| fields(r).to_vec()))
         .map(|row| cols.iter().map(|&c| row[c].clone()).collect())
@@ -497,6 +577,8 @@ fn node_count_label(d: &f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::cells::{CELL_WORK, TEST_WORK};
+    use crate::machine::message::NodeReport;
 
     #[test]
     fn dims_parse_ranges_and_lists() {
@@ -506,5 +588,46 @@ mod tests {
         assert!(parse_dims("5..2").is_err());
         assert!(parse_dims("x").is_err());
         assert!(parse_dims("0..11").is_err());
+    }
+
+    fn node(busy_seconds: f64, cells_visited: u64, intersection_tests: u64) -> NodeReport {
+        NodeReport {
+            busy_seconds,
+            cells_visited,
+            intersection_tests,
+            ..NodeReport::default()
+        }
+    }
+
+    #[test]
+    fn efficiency_factors_multiply_to_the_virtual_efficiency() {
+        // A compute speed of one half: virtual seconds are twice the host's.
+        let speed = 0.5;
+        let base = MachineStats {
+            virtual_seconds: 4.2,
+            per_node: vec![node(2.0, 100, 25)],
+            ..MachineStats::default()
+        };
+        let run = MachineStats {
+            virtual_seconds: 3.5,
+            per_node: vec![node(1.5, 60, 15), node(1.5, 70, 20)],
+            ..MachineStats::default()
+        };
+        let f = EfficiencyFactors::of(&run, &base, speed);
+        // Work (cells and TEST_WORK per test): 270 against 200.
+        let work = |c: u64, t: u64| (CELL_WORK * c + TEST_WORK * t) as f64;
+        let w_ratio = (work(60, 15) + work(70, 20)) / work(100, 25);
+        assert!((f.work_ratio - w_ratio).abs() < 1e-12, "{f:?}");
+        assert!((f.cost_ratio - 3.0 / 2.0 / w_ratio).abs() < 1e-12, "{f:?}");
+        assert!((f.utilisation - 3.0 / speed / (2.0 * 3.5)).abs() < 1e-12);
+        // The speedup over one node, per node.
+        let efficiency = base.virtual_seconds / run.virtual_seconds / 2.0;
+        let u0 = EfficiencyFactors::of(&base, &base, speed);
+        assert_eq!((u0.work_ratio, u0.cost_ratio), (1.0, 1.0));
+        let product = f.utilisation / u0.utilisation / (f.work_ratio * f.cost_ratio);
+        assert!(
+            (product - efficiency).abs() < 1e-12,
+            "{product} {efficiency}"
+        );
     }
 }

@@ -639,6 +639,16 @@ fn scale_writes_the_table_csv_and_plot() {
             }
         }
     }
+    // The efficiency's factors are against the first dimension's runs; a
+    // share of the node time is computing.
+    assert_eq!(num(&rows[0], "work_ratio"), 1.0, "{csv}");
+    assert_eq!(num(&rows[0], "cost_ratio"), 1.0, "{csv}");
+    for r in &rows {
+        let u = num(r, "utilisation");
+        assert!(u > 0.0 && u <= 1.001, "{csv}");
+        assert!(num(r, "work_ratio") > 0.0 && num(r, "cost_ratio") > 0.0);
+    }
+    assert!(table.contains("utilisation"), "{table}");
     // One node holds the whole structure; more nodes hold more of it
     // together (every one the skeleton), and send rays to each other.
     assert_eq!(num(&rows[0], "structure_ratio"), 1.0);
