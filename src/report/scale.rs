@@ -414,17 +414,19 @@ pub fn write_outputs(dir: &Path, title: &str, rows: &[ScaleRow]) -> Result<()> {
     write_atomically(&dir.join("scaling.csv"), |f| {
         std::io::Write::write_all(f, text.as_bytes()).map_err(|e| e.to_string())
     })?;
-    super::plot::write_png(&dir.join("scaling.png"), (1000, 520), |buf| {
-        draw(buf, title, rows)
-    })
+    super::plot::write_png(&dir.join("scaling.png"), SIZE, |buf| draw(buf, title, rows))
 }
+
+/// The plot's size: three panels of 500 by 520.
+const SIZE: (u32, u32) = (1500, 520);
 
 fn draw(buf: &mut [u8], title: &str, rows: &[ScaleRow]) -> std::result::Result<(), String> {
     let e = |x: &dyn std::fmt::Display| x.to_string();
-    let root = BitMapBackend::with_buffer(buf, (1000, 520)).into_drawing_area();
+    let root = BitMapBackend::with_buffer(buf, SIZE).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let root = root.titled(title, ("sans-serif", 20)).map_err(|x| e(&x))?;
-    let (left, right) = root.split_horizontally(500);
+    let (left, rest) = root.split_horizontally(500);
+    let (right, factors) = rest.split_horizontally(500);
     let max_nodes = rows.iter().map(|r| r.nodes).max().unwrap_or(1) as f64;
     // Node counts are powers of two: the axis is the dimension, labelled
     // with its node count, so that every count gets its tick.
@@ -515,7 +517,7 @@ fn draw(buf: &mut [u8], title: &str, rows: &[ScaleRow]) -> std::result::Result<(
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(48)
-        .build_cartesian_2d(x_range, 0.0..top)
+        .build_cartesian_2d(x_range.clone(), 0.0..top)
         .map_err(|x| e(&x))?;
     c.configure_mesh()
         .x_desc("nodes")
@@ -558,6 +560,71 @@ fn draw(buf: &mut [u8], title: &str, rows: &[ScaleRow]) -> std::result::Result<(
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
         .position(SeriesLabelPosition::UpperRight)
+        .draw()
+        .map_err(|x| e(&x))?;
+    // Where the virtual efficiency goes (`EfficiencyFactors`): it is the
+    // utilisation over the product of the two ratios.
+    let top = rows
+        .iter()
+        .flat_map(|r| {
+            [
+                r.factors.work_ratio,
+                r.factors.cost_ratio,
+                r.factors.utilisation,
+            ]
+        })
+        .filter(|v| v.is_finite())
+        .fold(1.0, f64::max)
+        * 1.15;
+    let mut c = ChartBuilder::on(&factors)
+        .caption(
+            "virtual efficiency = utilisation / (work x cost)",
+            ("sans-serif", 16),
+        )
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(48)
+        .build_cartesian_2d(x_range, 0.0..top)
+        .map_err(|x| e(&x))?;
+    c.configure_mesh()
+        .x_desc("nodes")
+        .x_labels(x_labels)
+        .x_label_formatter(&node_count_label)
+        .label_style(("sans-serif", 13))
+        .axis_desc_style(("sans-serif", 14))
+        .draw()
+        .map_err(|x| e(&x))?;
+    let purple = RGBColor(148, 103, 189);
+    let brown = RGBColor(140, 86, 75);
+    for (name, color, f) in [
+        (
+            "work (x one node's)",
+            purple,
+            (|r: &ScaleRow| r.factors.work_ratio) as fn(&ScaleRow) -> f64,
+        ),
+        ("host CPU per work (x one node's)", brown, |r: &ScaleRow| {
+            r.factors.cost_ratio
+        }),
+        ("utilisation", grey, |r: &ScaleRow| r.factors.utilisation),
+        ("efficiency, virtual", orange, |r: &ScaleRow| {
+            r.efficiency_virtual
+        }),
+    ] {
+        let pts: Vec<(f64, f64)> = rows.iter().map(|r| (r.dimension as f64, f(r))).collect();
+        c.draw_series(LineSeries::new(pts.clone(), color.stroke_width(2)))
+            .map_err(|x| e(&x))?
+            .label(name)
+            .legend(move |(x, y)| {
+                PathElement::new([(x - 10, y), (x + 10, y)], color.stroke_width(2))
+            });
+        c.draw_series(pts.into_iter().map(|p| Circle::new(p, 4, color.filled())))
+            .map_err(|x| e(&x))?;
+    }
+    c.configure_series_labels()
+        .label_font(("sans-serif", 13))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::UpperLeft)
         .draw()
         .map_err(|x| e(&x))?;
     root.present().map_err(|x| e(&x))
