@@ -9,10 +9,14 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
+use plotters::coord::Shift;
+use plotters::coord::ranged1d::ValueFormatter;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 use super::image_io::write_atomically;
 use crate::error::{Error, Result};
+use crate::machine::message::NodeReport;
 use crate::machine::{self, MachineOptions, MachineStats, Mapping, Topology};
 use crate::scene::Scene;
 use crate::trace::Film;
@@ -94,15 +98,7 @@ impl EfficiencyFactors {
     /// The factors of `run` against `base`, for a topology of compute speed
     /// `speed` (virtual seconds are host seconds over it).
     pub fn of(run: &MachineStats, base: &MachineStats, speed: f64) -> EfficiencyFactors {
-        let work = |r: &MachineStats| -> f64 {
-            r.per_node
-                .iter()
-                .map(|n| {
-                    (crate::cells::CELL_WORK * n.cells_visited
-                        + crate::cells::TEST_WORK * n.intersection_tests) as f64
-                })
-                .sum()
-        };
+        let work = |r: &MachineStats| -> f64 { r.per_node.iter().map(counted_work).sum() };
         let busy = |r: &MachineStats| -> f64 { r.per_node.iter().map(|n| n.busy_seconds).sum() };
         let (w, w0) = (work(run), work(base));
         EfficiencyFactors {
@@ -111,6 +107,13 @@ impl EfficiencyFactors {
             utilisation: utilisation(run, speed),
         }
     }
+}
+
+/// A node's counted work: cells entered and `cells::TEST_WORK` per test,
+/// the units the balanced mapping evens out (`machine::mapping`).
+fn counted_work(n: &NodeReport) -> f64 {
+    (crate::cells::CELL_WORK * n.cells_visited + crate::cells::TEST_WORK * n.intersection_tests)
+        as f64
 }
 
 /// The share of a run's node time (nodes times virtual seconds) its nodes
@@ -299,10 +302,7 @@ pub fn measure(
             imbalance_tests: machine::max_over_mean(
                 rep.per_node.iter().map(|n| n.intersection_tests as f64),
             ),
-            imbalance_work: machine::max_over_mean(rep.per_node.iter().map(|n| {
-                (crate::cells::CELL_WORK * n.cells_visited
-                    + crate::cells::TEST_WORK * n.intersection_tests) as f64
-            })),
+            imbalance_work: machine::max_over_mean(rep.per_node.iter().map(counted_work)),
             factors,
         });
     }
@@ -431,8 +431,10 @@ fn draw(buf: &mut [u8], title: &str, rows: &[ScaleRow]) -> std::result::Result<(
     // Node counts are powers of two: the axis is the dimension, labelled
     // with its node count, so that every count gets its tick.
     let max_dim = rows.iter().map(|r| r.dimension).max().unwrap_or(0) as f64;
-    let x_range = -0.25..max_dim.max(1.0) + 0.25;
-    let x_labels = max_dim as usize + 2;
+    let x = Axis {
+        range: -0.25..max_dim.max(1.0) + 0.25,
+        labels: max_dim as usize + 2,
+    };
     let blue = RGBColor(31, 119, 180);
     let orange = RGBColor(255, 127, 14);
     let grey = RGBColor(120, 120, 120);
@@ -455,16 +457,9 @@ fn draw(buf: &mut [u8], title: &str, rows: &[ScaleRow]) -> std::result::Result<(
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(56)
-        .build_cartesian_2d(x_range.clone(), (bottom..top).log_scale())
+        .build_cartesian_2d(x.range.clone(), (bottom..top).log_scale())
         .map_err(|x| e(&x))?;
-    c.configure_mesh()
-        .x_desc("nodes")
-        .x_labels(x_labels)
-        .x_label_formatter(&node_count_label)
-        .label_style(("sans-serif", 13))
-        .axis_desc_style(("sans-serif", 14))
-        .draw()
-        .map_err(|x| e(&x))?;
+    mesh(&mut c, &x)?;
     let ideal: Vec<(f64, f64)> = rows
         .iter()
         .map(|r| (r.dimension as f64, r.nodes as f64))
@@ -473,143 +468,125 @@ fn draw(buf: &mut [u8], title: &str, rows: &[ScaleRow]) -> std::result::Result<(
         .map_err(|x| e(&x))?
         .label("ideal")
         .legend(move |(x, y)| PathElement::new([(x - 10, y), (x + 10, y)], grey));
-    for (name, color, f) in [
-        (
-            "wall (host)",
-            blue,
-            (|r: &ScaleRow| r.speedup_wall) as fn(&ScaleRow) -> f64,
-        ),
-        ("virtual (model)", orange, |r: &ScaleRow| r.speedup_virtual),
-    ] {
-        let pts: Vec<(f64, f64)> = rows.iter().map(|r| (r.dimension as f64, f(r))).collect();
-        c.draw_series(LineSeries::new(pts.clone(), color.stroke_width(2)))
-            .map_err(|x| e(&x))?
-            .label(name)
-            .legend(move |(x, y)| {
-                PathElement::new([(x - 10, y), (x + 10, y)], color.stroke_width(2))
-            });
-        c.draw_series(pts.into_iter().map(|p| Circle::new(p, 4, color.filled())))
-            .map_err(|x| e(&x))?;
-    }
-    c.configure_series_labels()
-        .label_font(("sans-serif", 13))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .position(SeriesLabelPosition::UpperLeft)
-        .draw()
-        .map_err(|x| e(&x))?;
+    curves(
+        &mut c,
+        rows,
+        &[
+            ("wall (host)", blue, |r| r.speedup_wall),
+            ("virtual (model)", orange, |r| r.speedup_virtual),
+        ],
+        SeriesLabelPosition::UpperLeft,
+    )?;
     // Efficiency, and the imbalance of both mappings.
-    let top = rows
-        .iter()
-        .flat_map(|r| {
-            [
-                r.efficiency_wall,
-                r.efficiency_virtual,
-                r.imbalance_balanced,
-                r.imbalance_equal_area,
-            ]
-        })
-        .filter(|v| v.is_finite())
-        .fold(1.0, f64::max)
-        * 1.15;
-    let mut c = ChartBuilder::on(&right)
-        .caption("efficiency and imbalance", ("sans-serif", 16))
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(48)
-        .build_cartesian_2d(x_range.clone(), 0.0..top)
-        .map_err(|x| e(&x))?;
-    c.configure_mesh()
-        .x_desc("nodes")
-        .x_labels(x_labels)
-        .x_label_formatter(&node_count_label)
-        .label_style(("sans-serif", 13))
-        .axis_desc_style(("sans-serif", 14))
-        .draw()
-        .map_err(|x| e(&x))?;
-    let green = RGBColor(44, 160, 44);
-    let red = RGBColor(214, 39, 40);
-    for (name, color, f) in [
-        (
-            "efficiency, wall",
-            blue,
-            (|r: &ScaleRow| r.efficiency_wall) as fn(&ScaleRow) -> f64,
-        ),
-        ("efficiency, virtual", orange, |r: &ScaleRow| {
-            r.efficiency_virtual
-        }),
-        ("imbalance, balanced", green, |r: &ScaleRow| {
-            r.imbalance_balanced
-        }),
-        ("imbalance, equal area", red, |r: &ScaleRow| {
-            r.imbalance_equal_area
-        }),
-    ] {
-        let pts: Vec<(f64, f64)> = rows.iter().map(|r| (r.dimension as f64, f(r))).collect();
-        c.draw_series(LineSeries::new(pts.clone(), color.stroke_width(2)))
-            .map_err(|x| e(&x))?
-            .label(name)
-            .legend(move |(x, y)| {
-                PathElement::new([(x - 10, y), (x + 10, y)], color.stroke_width(2))
-            });
-        c.draw_series(pts.into_iter().map(|p| Circle::new(p, 4, color.filled())))
-            .map_err(|x| e(&x))?;
-    }
-    c.configure_series_labels()
-        .label_font(("sans-serif", 13))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .position(SeriesLabelPosition::UpperRight)
-        .draw()
-        .map_err(|x| e(&x))?;
+    linear_panel(
+        &right,
+        "efficiency and imbalance",
+        &x,
+        rows,
+        &[
+            ("efficiency, wall", blue, |r| r.efficiency_wall),
+            ("efficiency, virtual", orange, |r| r.efficiency_virtual),
+            ("imbalance, balanced", RGBColor(44, 160, 44), |r| {
+                r.imbalance_balanced
+            }),
+            ("imbalance, equal area", RGBColor(214, 39, 40), |r| {
+                r.imbalance_equal_area
+            }),
+        ],
+        SeriesLabelPosition::UpperRight,
+    )?;
     // Where the virtual efficiency goes (`EfficiencyFactors`): it is the
     // utilisation over the product of the two ratios.
+    linear_panel(
+        &factors,
+        "virtual efficiency = utilisation / (work x cost)",
+        &x,
+        rows,
+        &[
+            ("work (x one node's)", RGBColor(148, 103, 189), |r| {
+                r.factors.work_ratio
+            }),
+            (
+                "host CPU per work (x one node's)",
+                RGBColor(140, 86, 75),
+                |r| r.factors.cost_ratio,
+            ),
+            ("utilisation", grey, |r| r.factors.utilisation),
+            ("efficiency, virtual", orange, |r| r.efficiency_virtual),
+        ],
+        SeriesLabelPosition::UpperLeft,
+    )?;
+    root.present().map_err(|x| e(&x))
+}
+
+/// The node-count axis every panel shares: the dimension, with room on
+/// either side, and a tick per dimension.
+struct Axis {
+    range: std::ops::Range<f64>,
+    labels: usize,
+}
+
+/// A curve of a panel: its legend, its colour, and its value in a row.
+type Curve = (&'static str, RGBColor, fn(&ScaleRow) -> f64);
+
+/// A panel's chart: the node-count axis against `Y`.
+type Chart<'a, 'b, Y> = ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, Y>>;
+
+/// A panel with a linear axis from 0 to above its highest finite value
+/// (and at least above 1, where speedup and balance are ideal).
+fn linear_panel(
+    area: &DrawingArea<BitMapBackend<'_>, Shift>,
+    caption: &str,
+    x: &Axis,
+    rows: &[ScaleRow],
+    series: &[Curve],
+    legend: SeriesLabelPosition,
+) -> std::result::Result<(), String> {
     let top = rows
         .iter()
-        .flat_map(|r| {
-            [
-                r.factors.work_ratio,
-                r.factors.cost_ratio,
-                r.factors.utilisation,
-            ]
-        })
+        .flat_map(|r| series.iter().map(move |(_, _, f)| f(r)))
         .filter(|v| v.is_finite())
         .fold(1.0, f64::max)
         * 1.15;
-    let mut c = ChartBuilder::on(&factors)
-        .caption(
-            "virtual efficiency = utilisation / (work x cost)",
-            ("sans-serif", 16),
-        )
+    let mut c = ChartBuilder::on(area)
+        .caption(caption, ("sans-serif", 16))
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(48)
-        .build_cartesian_2d(x_range, 0.0..top)
-        .map_err(|x| e(&x))?;
+        .build_cartesian_2d(x.range.clone(), 0.0..top)
+        .map_err(|e| e.to_string())?;
+    mesh(&mut c, x)?;
+    curves(&mut c, rows, series, legend)
+}
+
+/// A panel's grid and axes, the horizontal one labelled by node count.
+fn mesh<Y>(c: &mut Chart<'_, '_, Y>, x: &Axis) -> std::result::Result<(), String>
+where
+    Y: Ranged<ValueType = f64> + ValueFormatter<f64>,
+{
     c.configure_mesh()
         .x_desc("nodes")
-        .x_labels(x_labels)
+        .x_labels(x.labels)
         .x_label_formatter(&node_count_label)
         .label_style(("sans-serif", 13))
         .axis_desc_style(("sans-serif", 14))
         .draw()
-        .map_err(|x| e(&x))?;
-    let purple = RGBColor(148, 103, 189);
-    let brown = RGBColor(140, 86, 75);
-    for (name, color, f) in [
-        (
-            "work (x one node's)",
-            purple,
-            (|r: &ScaleRow| r.factors.work_ratio) as fn(&ScaleRow) -> f64,
-        ),
-        ("host CPU per work (x one node's)", brown, |r: &ScaleRow| {
-            r.factors.cost_ratio
-        }),
-        ("utilisation", grey, |r: &ScaleRow| r.factors.utilisation),
-        ("efficiency, virtual", orange, |r: &ScaleRow| {
-            r.efficiency_virtual
-        }),
-    ] {
+        .map_err(|e| e.to_string())
+}
+
+/// Each curve as a line with a dot per row, then the legend of all the
+/// panel's labelled series at `legend`.
+fn curves<'a, 'b: 'a, Y>(
+    c: &mut Chart<'a, 'b, Y>,
+    rows: &[ScaleRow],
+    series: &[Curve],
+    legend: SeriesLabelPosition,
+) -> std::result::Result<(), String>
+where
+    Y: Ranged<ValueType = f64>,
+{
+    let e = |x: &dyn std::fmt::Display| x.to_string();
+    for &(name, color, f) in series {
         let pts: Vec<(f64, f64)> = rows.iter().map(|r| (r.dimension as f64, f(r))).collect();
         c.draw_series(LineSeries::new(pts.clone(), color.stroke_width(2)))
             .map_err(|x| e(&x))?
@@ -624,10 +601,9 @@ fn draw(buf: &mut [u8], title: &str, rows: &[ScaleRow]) -> std::result::Result<(
         .label_font(("sans-serif", 13))
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
-        .position(SeriesLabelPosition::UpperLeft)
+        .position(legend)
         .draw()
-        .map_err(|x| e(&x))?;
-    root.present().map_err(|x| e(&x))
+        .map_err(|x| e(&x))
 }
 
 /// A label of the dimension axis: the node count 2^d at whole d, nothing
@@ -645,7 +621,6 @@ fn node_count_label(d: &f64) -> String {
 mod tests {
     use super::*;
     use crate::cells::{CELL_WORK, TEST_WORK};
-    use crate::machine::message::NodeReport;
 
     #[test]
     fn dims_parse_ranges_and_lists() {
