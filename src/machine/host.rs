@@ -9,7 +9,7 @@ use std::collections::HashMap;
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::time::Instant;
 
-use super::codec::{append_stamped, decode_envelope, encode_stamped};
+use super::codec::{append_stamped, decode_envelope, encode_stamped, unpack_done};
 use super::mapping::{self, Mapping};
 use super::message::{Finished, LinkModel, NodeReport, Part, Path, Share, ToHost, ToNode};
 use super::node;
@@ -924,7 +924,9 @@ impl Run {
             self.clock = self.clock.max(arrival);
             match body {
                 ToHost::Loaded { .. } => self.loaded += 1,
-                ToHost::Done { finished, .. } => {
+                ToHost::Done { node, finished } => {
+                    let finished = unpack_done(node, &finished)
+                        .map_err(|e| Error::Render(format!("node {node}: {e}")))?;
                     let before = self.finished;
                     for f in &finished {
                         if let Err(e) = self.finish(f) {

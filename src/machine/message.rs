@@ -43,10 +43,10 @@ pub enum ToHost {
     Loaded {
         node: u16,
     },
-    /// Finished samples, in a batch.
+    /// Finished samples, in a batch (`codec::pack_done`).
     Done {
         node: u16,
-        finished: Vec<Finished>,
+        finished: super::codec::WireDone,
     },
     /// The node has started every sample it owns: this many.
     Generated {

@@ -25,7 +25,9 @@ use std::cmp::Ordering;
 use std::collections::{BinaryHeap, VecDeque};
 use std::time::{Duration, Instant};
 
-use super::codec::{PathContext, append_stamped, decode_envelope, for_each_frame, pack, unpack};
+use super::codec::{
+    PathContext, append_stamped, decode_envelope, for_each_frame, pack, pack_done, unpack,
+};
 use super::message::{
     Active, Finished, LinkModel, NodeReport, Part, Path, Routed, Share, ToHost, ToNode,
 };
@@ -934,9 +936,13 @@ impl<'a> Node<'a> {
         if self.done.is_empty() {
             return Ok(());
         }
-        let finished = std::mem::take(&mut self.done);
         self.done_urgent = None;
         self.credited_waiting += std::mem::take(&mut self.credited_in_done);
+        // Packing is encoding (as in `seal`).
+        let t0 = Instant::now();
+        let finished = pack_done(self.id, &self.done);
+        self.done.clear();
+        self.excluded += t0.elapsed().as_secs_f64();
         self.send_host(ToHost::Done {
             node: self.id,
             finished,
