@@ -736,10 +736,18 @@ impl<'a> CellTracer<'a> {
                 tests += 1;
                 let hits = prims[p].intersect(ray);
                 *mb = Mailbox::of(id, &hits);
+                if matches!(hits, PrimHits::Miss) {
+                    // As a culled leaf (below); its stale crossings stay,
+                    // behind an empty extent.
+                    continue;
+                }
                 all_hits[p] = hits;
             } else {
+                // No crossings: nothing in the window (the test below
+                // would say so, unless `t_lo` is -inf).
                 culled += 1;
                 *mb = Mailbox::missed(id);
+                continue;
             }
             if mb.hi >= t_lo && mb.lo <= t_end {
                 if self.occluding && l.exposed {
