@@ -341,6 +341,79 @@ impl HostLinks for ChannelHost {
 mod tests {
     use super::*;
 
+    /// Runs `f` on its own thread and returns what it gives, failing (not
+    /// hanging) if it has not finished within 10 s: a lost wake-up.
+    fn within_10s<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> T {
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || tx.send(f()));
+        rx.recv_timeout(std::time::Duration::from_secs(10))
+            .expect("a waiting end was never woken")
+    }
+
+    /// Receives as an idle node does: `wait` until a message is there.
+    fn receive(mut links: ChannelNode) -> (ChannelNode, Result<Vec<u8>, Closed>) {
+        loop {
+            match links.try_recv() {
+                Ok(Some(b)) => return (links, Ok(b)),
+                Ok(None) => links.wait(&[]),
+                Err(c) => return (links, Err(c)),
+            }
+        }
+    }
+
+    #[test]
+    fn a_waiting_end_wakes_for_a_message_for_room_and_when_a_link_goes() {
+        let pause = || std::thread::sleep(std::time::Duration::from_millis(50));
+        let (mut host, mut nodes) = channels(1, 1);
+        let (b, mut a) = (nodes.pop().unwrap(), nodes.pop().unwrap());
+        // A message to a node asleep in `wait`.
+        let waiter = std::thread::spawn(move || within_10s(move || receive(b)));
+        pause();
+        assert_eq!(a.try_send(Link::Dim(0), vec![1]), Ok(None));
+        let (mut b, got) = waiter.join().unwrap();
+        assert_eq!(got, Ok(vec![1]));
+        // Room on a full link, for a sender asleep in `wait`.
+        assert_eq!(a.try_send(Link::Dim(0), vec![2]), Ok(None));
+        let sender = std::thread::spawn(move || {
+            within_10s(move || {
+                let mut bytes = vec![3];
+                while let Some(back) = a.try_send(Link::Dim(0), bytes).unwrap() {
+                    bytes = back;
+                    a.wait(&[Link::Dim(0)]);
+                }
+                a
+            })
+        });
+        pause();
+        assert_eq!(b.try_recv(), Ok(Some(vec![2])));
+        let a = sender.join().unwrap();
+        assert_eq!(b.try_recv(), Ok(Some(vec![3])));
+        // The host, asleep in `recv`, hears a node's message, and that
+        // every node has gone.
+        drop(b);
+        let collector = std::thread::spawn(move || {
+            within_10s(move || {
+                let first = host.recv();
+                (first, host.recv(), host)
+            })
+        });
+        pause();
+        let mut a = a;
+        assert_eq!(a.try_send(Link::Host, vec![4]), Ok(None));
+        pause();
+        drop(a);
+        let (first, second, _host) = collector.join().unwrap();
+        assert_eq!(first, Ok(vec![4]));
+        assert_eq!(second, Err(Closed(Link::Host)));
+        // A node asleep in `wait` whose host goes.
+        let (host, mut nodes) = channels(0, 1);
+        let only = nodes.pop().unwrap();
+        let waiter = std::thread::spawn(move || within_10s(move || receive(only)));
+        pause();
+        drop(host);
+        assert_eq!(waiter.join().unwrap().1, Err(Closed(Link::Host)));
+    }
+
     #[test]
     fn links_join_exactly_the_hypercube_neighbours() {
         let (mut host, mut nodes) = channels(3, 1);
