@@ -111,19 +111,18 @@ pub fn append_stamped<T: Serialize>(
     })
 }
 
-/// `v` in LEB128 into `out`; returns the bytes used.
-fn leb128(mut v: u64, out: &mut [u8; 10]) -> usize {
+/// `v` in LEB128 at the front of `out` (which has room for 10 bytes);
+/// returns the bytes used.
+#[inline(always)]
+fn leb128(mut v: u64, out: &mut [u8]) -> usize {
     let mut n = 0;
-    loop {
-        let byte = (v & 0x7f) as u8;
+    while v >= 0x80 {
+        out[n] = v as u8 | 0x80;
         v >>= 7;
-        if v == 0 {
-            out[n] = byte;
-            return n + 1;
-        }
-        out[n] = byte | 0x80;
         n += 1;
     }
+    out[n] = v as u8;
+    n + 1
 }
 
 /// A LEB128 number from the front of `bytes`, and the bytes it used.
@@ -546,7 +545,7 @@ pub fn pack_done(node: u16, finished: &[Finished]) -> WireDone {
     for f in finished {
         let mut rec = [0u8; MAX_RECORD];
         let mut n = 1;
-        let mut put = |v: u64| n += leb128_at(v, &mut rec[n..]);
+        let mut put = |v: u64| n += leb128(v, &mut rec[n..]);
         put(zigzag(f.sample.wrapping_sub(prev) as i64));
         prev = f.sample;
         let mut flags = 0;
@@ -571,20 +570,6 @@ pub fn pack_done(node: u16, finished: &[Finished]) -> WireDone {
         out.extend_from_slice(&rec[..n]);
     }
     WireDone(out)
-}
-
-/// `v` in LEB128 at the front of `out` (which has room for 10 bytes);
-/// returns the bytes used.
-#[inline(always)]
-fn leb128_at(mut v: u64, out: &mut [u8]) -> usize {
-    let mut n = 0;
-    while v >= 0x80 {
-        out[n] = v as u8 | 0x80;
-        v >>= 7;
-        n += 1;
-    }
-    out[n] = v as u8;
-    n + 1
 }
 
 /// The finished samples of a batch from node `node`, exactly as packed;

@@ -209,19 +209,26 @@ pub fn channels(d: u32, capacity: usize) -> (ChannelHost, Vec<ChannelNode>) {
     (host, nodes)
 }
 
+/// Whether a message waits on one of the links `from` not yet `done`.
+fn offered(from: &[Receiver<Vec<u8>>], done: &[bool]) -> bool {
+    (from.iter().zip(done)).any(|(rx, &done)| !done && !rx.is_empty())
+}
+
 impl ChannelNode {
+    /// The sending end of `link`, and the bell of the end it reaches.
+    fn sender(&self, link: Link) -> (&Sender<Vec<u8>>, &Bell) {
+        match link {
+            Link::Dim(k) => (&self.to[k as usize], &self.neighbour_bells[k as usize]),
+            Link::Host => (&self.to_host, &self.host_bell),
+        }
+    }
+
     /// Whether a message waits or one of `sending` has room: `wait` need
     /// not sleep.
     fn ready(&self, sending: &[Link]) -> bool {
         !self.from_host.is_empty()
-            || (self.from.iter().zip(&self.done)).any(|(rx, &done)| !done && !rx.is_empty())
-            || sending.iter().any(|l| {
-                let tx = match l {
-                    Link::Dim(k) => &self.to[*k as usize],
-                    Link::Host => &self.to_host,
-                };
-                !tx.is_full()
-            })
+            || offered(&self.from, &self.done)
+            || sending.iter().any(|&l| !self.sender(l).0.is_full())
     }
 }
 
@@ -246,10 +253,7 @@ impl Drop for ChannelHost {
 
 impl NodeLinks for ChannelNode {
     fn try_send(&mut self, link: Link, bytes: Vec<u8>) -> Result<Option<Vec<u8>>, Closed> {
-        let (tx, bell) = match link {
-            Link::Dim(k) => (&self.to[k as usize], &self.neighbour_bells[k as usize]),
-            Link::Host => (&self.to_host, &self.host_bell),
-        };
+        let (tx, bell) = self.sender(link);
         match tx.try_send(bytes) {
             Ok(()) => {
                 bell.ring();
@@ -331,8 +335,7 @@ impl HostLinks for ChannelHost {
                 return Err(Closed(Link::Host));
             }
             let (from, done) = (&self.from, &self.done);
-            self.bell
-                .wait(|| (from.iter().zip(done)).any(|(rx, &done)| !done && !rx.is_empty()));
+            self.bell.wait(|| offered(from, done));
         }
     }
 }
@@ -386,7 +389,7 @@ mod tests {
         });
         pause();
         assert_eq!(b.try_recv(), Ok(Some(vec![2])));
-        let a = sender.join().unwrap();
+        let mut a = sender.join().unwrap();
         assert_eq!(b.try_recv(), Ok(Some(vec![3])));
         // The host, asleep in `recv`, hears a node's message, and that
         // every node has gone.
@@ -398,7 +401,6 @@ mod tests {
             })
         });
         pause();
-        let mut a = a;
         assert_eq!(a.try_send(Link::Host, vec![4]), Ok(None));
         pause();
         drop(a);

@@ -99,7 +99,6 @@ impl EfficiencyFactors {
     /// `speed` (virtual seconds are host seconds over it).
     pub fn of(run: &MachineStats, base: &MachineStats, speed: f64) -> EfficiencyFactors {
         let work = |r: &MachineStats| -> f64 { r.per_node.iter().map(counted_work).sum() };
-        let busy = |r: &MachineStats| -> f64 { r.per_node.iter().map(|n| n.busy_seconds).sum() };
         let (w, w0) = (work(run), work(base));
         EfficiencyFactors {
             work_ratio: w / w0,
@@ -119,8 +118,12 @@ fn counted_work(n: &NodeReport) -> f64 {
 /// The share of a run's node time (nodes times virtual seconds) its nodes
 /// spent computing (`EfficiencyFactors::utilisation`).
 fn utilisation(r: &MachineStats, speed: f64) -> f64 {
-    let busy: f64 = r.per_node.iter().map(|n| n.busy_seconds).sum();
-    busy / speed / (r.per_node.len() as f64 * r.virtual_seconds)
+    busy(r) / speed / (r.per_node.len() as f64 * r.virtual_seconds)
+}
+
+/// The host CPU seconds all of a run's nodes spent computing.
+fn busy(r: &MachineStats) -> f64 {
+    r.per_node.iter().map(|n| n.busy_seconds).sum()
 }
 
 /// Parses `--dims`: `A..B` (inclusive) or a list `0,2,5`.
