@@ -85,8 +85,17 @@ const LAG_SLICES: f64 = 1.0;
 /// slice 4.08-4.39 s and 37,600-38,800 (at d = 5, 8 slices gave 6,600-8,100
 /// virtual seconds against 5,600-5,700 for one).
 const LAG_SLICES_OWN_CORE: f64 = 8.0;
-/// Host time a node works between two readings of its CPU time.
+/// Host time a node works between two looks at its links and its
+/// neighbours' clocks (`LAG_SLICES`).
 const SLICE: Duration = Duration::from_micros(25);
+/// Host time between two readings of a node's CPU time (`CpuWindow`),
+/// unless the node waits first. Reading it is a system call of about
+/// 0.7 µs on this host's virtual machine: read at the ends of every
+/// 25 µs slice it took 6% of a node's time; over 100 µs of slices, 1.5%.
+/// (Longer slices would save the same but let the clocks drift further
+/// apart: with 100 µs slices the sphereflake's d = 5 render took 1.6
+/// times the virtual seconds per busy second.)
+const CPU_WINDOW: Duration = Duration::from_micros(100);
 /// How long (host time) the messages for the host may gather before they
 /// are handed to the link, unless the node is about to idle. Emulation
 /// only: every message keeps its own virtual stamp, so the model is the
@@ -178,6 +187,34 @@ pub fn run(id: u16, links: &mut dyn NodeLinks) -> Result<(), NodeError> {
         node.take(sent_at, body)?;
     }
     node.run()
+}
+
+/// The work since a node last read its CPU time (`work_for_a_while`):
+/// that reading, the slices' estimates of their cost in virtual seconds,
+/// the floor the clock keeps when they are replaced by the CPU time, and
+/// the host seconds within it that were the emulation's.
+struct CpuWindow {
+    cpu0: f64,
+    opened: Instant,
+    estimated: f64,
+    floor: f64,
+    excluded: f64,
+    /// When the last slice in it ended.
+    slice_end: Instant,
+}
+
+impl CpuWindow {
+    /// A window from CPU time `cpu0` and the clock `clock`, at `now`.
+    fn open(cpu0: f64, clock: f64, now: Instant) -> Self {
+        CpuWindow {
+            cpu0,
+            opened: now,
+            estimated: 0.0,
+            floor: clock,
+            excluded: 0.0,
+            slice_end: now,
+        }
+    }
 }
 
 /// The bytes of the paths a message brings, once decoded.
@@ -280,6 +317,8 @@ struct Node<'a> {
     /// Host seconds spent, in the current slice, on the emulation's own
     /// work (encoding messages), which the clock does not charge.
     excluded: f64,
+    /// The slices since the node's CPU time was last read, if any.
+    cpu_window: Option<CpuWindow>,
     /// Per link, the envelope of messages waiting to go (`codec`).
     waiting: Vec<Vec<u8>>,
     /// Envelopes received and taken, emptied, for the next ones to send
@@ -351,6 +390,7 @@ impl<'a> Node<'a> {
             done_urgent: None,
             host_flushed: Instant::now(),
             excluded: 0.0,
+            cpu_window: None,
             heard: vec![0.0; d],
             announced: 0.0,
             waiting: (0..=d).map(|_| Vec::with_capacity(ENVELOPE_ROOM)).collect(),
@@ -402,6 +442,12 @@ impl<'a> Node<'a> {
                 break;
             }
             if self.ahead() {
+                // Its clock as measured, not estimated: the wait is not
+                // work, and the neighbours are told where it stands.
+                self.close_cpu_window();
+                if !self.ahead() {
+                    continue;
+                }
                 // Wait, in real time, for the neighbours to catch up; they
                 // must know where this node stands (they may be waiting
                 // for it too, on older news).
@@ -424,9 +470,11 @@ impl<'a> Node<'a> {
                     .filter(|&i| !self.waiting[i].is_empty())
                     .map(|i| self.link_of(i))
                     .collect();
+                self.close_cpu_window();
                 self.links.wait(&sending);
             }
         }
+        self.close_cpu_window();
         self.report.virtual_seconds = self.clock;
         let c = self.tracer.counters;
         self.report.intersection_tests = c.intersection_tests;
@@ -499,26 +547,39 @@ impl<'a> Node<'a> {
     /// The clock measures computing only: the tracing, shading and
     /// bookkeeping a node of the modelled machine would do. Encoding,
     /// decoding and moving messages are the link model's (`send_cost`,
-    /// latency): messages are decoded in `handle`, outside the slices, and
-    /// the time spent encoding within a slice is taken off it (`excluded`),
-    /// or the emulation's own costs, scaled by the node speed, would be
-    /// charged twice.
+    /// latency): the time spent encoding within a slice is taken off it
+    /// (`excluded`), and so is the time between slices, where messages are
+    /// decoded (`handle`) and sent (`flush`), or the emulation's own costs,
+    /// scaled by the node speed, would be charged twice.
     ///
     /// Thread CPU time is the measure (what the node computed, not what the
     /// host's scheduler gave other threads), but reading it is a system
-    /// call, dearer than a short unit of work: it is read once per slice.
-    /// Within a slice each unit advances the clock by its monotonic-clock
-    /// time, so that messages sent mid-slice carry a sensible stamp; at the
-    /// end the slice's CPU time replaces the sum of those estimates. (A
-    /// slice in which the thread was descheduled stamps its messages late
-    /// by up to the time it waited: the model errs on the slow side.)
+    /// call, dearer than a short unit of work: it is read once per
+    /// `CpuWindow`. Within it each unit advances the clock by its
+    /// monotonic-clock time, so that messages sent mid-window carry a
+    /// sensible stamp; when the window closes, its CPU time replaces the
+    /// sum of those estimates. (A unit in which the thread was descheduled
+    /// stamps its messages late by up to the time it waited: the model
+    /// errs on the slow side.)
     fn work_for_a_while(&mut self) -> Result<bool, NodeError> {
         let speed = self.model.compute_speed;
-        let cpu0 = cpu_seconds();
         let start = Instant::now();
+        let mut window = match self.cpu_window.take() {
+            Some(w) if start - w.slice_end < CPU_WINDOW => w,
+            // Long enough since the last slice that the thread may have
+            // been descheduled: settled now, with that time charged (as
+            // the CPU time it was, some microseconds of emulation), so
+            // that no wait is taken off the node's CPU time.
+            Some(w) => {
+                let cpu = self.settle(w, start);
+                CpuWindow::open(cpu, self.clock, start)
+            }
+            None => CpuWindow::open(cpu_seconds(), self.clock, start),
+        };
+        // Since the last slice: decoding and sending, the emulation's.
+        window.excluded += (start - window.slice_end).as_secs_f64();
         let mut t0 = start;
         let mut estimated = 0.0;
-        let mut floor = self.clock;
         let mut worked = false;
         self.excluded = 0.0;
         loop {
@@ -531,7 +592,7 @@ impl<'a> Node<'a> {
             // The unit may have jumped the clock to an arrival, or paid a
             // send: a floor the correction below must not undercut.
             if self.clock > before {
-                floor = floor.max(self.clock);
+                window.floor = window.floor.max(self.clock);
             }
             let t1 = Instant::now();
             let unit = (t1 - t0).as_secs_f64() - (self.excluded - excluded);
@@ -543,10 +604,45 @@ impl<'a> Node<'a> {
                 break;
             }
         }
-        let cpu = (cpu_seconds() - cpu0 - self.excluded).max(0.0);
-        self.report.busy_seconds += cpu;
-        self.clock = (self.clock - estimated + cpu / speed).max(floor);
+        let end = Instant::now();
+        window.estimated += estimated;
+        window.excluded += self.excluded;
+        window.slice_end = end;
+        self.cpu_window = Some(if end - window.opened >= CPU_WINDOW {
+            // One reading closes this window and opens the next.
+            let cpu = self.settle(window, end);
+            CpuWindow::open(cpu, self.clock, end)
+        } else {
+            window
+        });
         Ok(worked)
+    }
+
+    /// Settles the window before the node waits, so that the wait is not
+    /// counted as work (`work_for_a_while`).
+    fn close_cpu_window(&mut self) {
+        if let Some(w) = self.cpu_window.take() {
+            self.settle(w, Instant::now());
+        }
+    }
+
+    /// Reads the CPU time and puts what the window's work cost in place of
+    /// its estimates; the time since its last slice (`now` less
+    /// `slice_end`) was the emulation's, unless it was long enough to hide
+    /// a wait. Returns the reading.
+    fn settle(&mut self, w: CpuWindow, now: Instant) -> f64 {
+        let cpu_now = cpu_seconds();
+        let tail = now - w.slice_end;
+        let tail = if tail < CPU_WINDOW {
+            tail.as_secs_f64()
+        } else {
+            0.0
+        };
+        let cpu = (cpu_now - w.cpu0 - w.excluded - tail).max(0.0);
+        self.report.busy_seconds += cpu;
+        let speed = self.model.compute_speed;
+        self.clock = (self.clock - w.estimated + cpu / speed).max(w.floor);
+        cpu_now
     }
 
     /// Takes every message offered now.
