@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use rustc_hash::FxHashMap;
 
-use super::codec::{append_stamped, decode_envelope, encode_stamped, unpack_done};
+use super::codec::{append_stamped, decode_envelope, encode_stamped, for_each_done};
 use super::mapping::{self, Mapping};
 use super::message::{Finished, LinkModel, NodeReport, Part, Path, Share, ToHost, ToNode};
 use super::node;
@@ -872,7 +872,10 @@ impl Run {
         }
         let pixel = (f.sample / self.spp) as u32;
         self.film.add_fixed(pixel, f.sum);
-        let whole = match (f.part, self.pieces.get_mut(&f.sample)) {
+        // Whether it is whole now; most samples are one piece, never kept.
+        let pieced = self.pieces.get_mut(&f.sample);
+        let kept = pieced.is_some();
+        let whole = match (f.part, pieced) {
             (Part::Root { forks: 0 }, None) => Some(f.traced),
             (Part::Root { forks }, None) => {
                 self.pieces.insert(f.sample, (Some((forks, f.traced)), 0));
@@ -901,7 +904,9 @@ impl Run {
             }
         };
         if let Some(traced) = whole {
-            self.pieces.remove(&f.sample);
+            if kept {
+                self.pieces.remove(&f.sample);
+            }
             self.seen[w] |= 1 << b;
             self.finished += 1;
             if traced {
@@ -929,14 +934,14 @@ impl Run {
             match body {
                 ToHost::Loaded { .. } => self.loaded += 1,
                 ToHost::Done { node, finished } => {
-                    let finished = unpack_done(node, &finished)
-                        .map_err(|e| Error::Render(format!("node {node}: {e}")))?;
                     let before = self.finished;
-                    for f in &finished {
-                        if let Err(e) = self.finish(f) {
+                    for_each_done(node, &finished, |f| {
+                        if let Err(e) = self.finish(&f) {
                             failures.push((f.origin, e));
                         }
-                    }
+                        Ok(())
+                    })
+                    .map_err(|e| Error::Render(format!("node {node}: {e}")))?;
                     progress(self.finished - before);
                     if !self.stopped {
                         for o in 0..self.nodes {

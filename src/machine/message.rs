@@ -43,7 +43,7 @@ pub enum ToHost {
     Loaded {
         node: u16,
     },
-    /// Finished samples, in a batch (`codec::pack_done`).
+    /// Finished samples, in a batch (`codec::pack_done_into`).
     Done {
         node: u16,
         finished: super::codec::WireDone,

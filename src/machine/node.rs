@@ -26,7 +26,8 @@ use std::collections::{BinaryHeap, VecDeque};
 use std::time::{Duration, Instant};
 
 use super::codec::{
-    PathContext, append_stamped, decode_envelope, for_each_frame, pack, pack_done, unpack,
+    PathContext, WireDone, append_stamped, decode_envelope, for_each_frame, pack, pack_done_into,
+    unpack,
 };
 use super::message::{
     Active, Finished, LinkModel, NodeReport, Part, Path, Routed, Share, ToHost, ToNode,
@@ -327,6 +328,9 @@ struct Node<'a> {
     /// Per link, whether its envelope holds more than `Clock` frames.
     carries: Vec<bool>,
     done: Vec<Finished>,
+    /// The bytes of the last batch of finished records sent, kept to pack
+    /// the next one in (`send_done`).
+    done_wire: WireDone,
     /// Samples credited here (`credit_locally`) whose finished record is
     /// still in `done`, and those in the host link's waiting envelope.
     credited_in_done: u32,
@@ -397,6 +401,7 @@ impl<'a> Node<'a> {
             spare: Vec::new(),
             carries: vec![false; d + 1],
             done: Vec::new(),
+            done_wire: WireDone::default(),
             credited_in_done: 0,
             credited_waiting: 0,
             generated_reported: false,
@@ -463,6 +468,11 @@ impl<'a> Node<'a> {
                 continue;
             }
             let worked = self.work_for_a_while()?;
+            if !worked {
+                // About to idle: what it sends now carries its measured
+                // clock, not an estimate.
+                self.close_cpu_window();
+            }
             self.announce(worked)?;
             self.flush(!worked)?;
             if !worked && !self.stopping {
@@ -1036,13 +1046,20 @@ impl<'a> Node<'a> {
         self.credited_waiting += std::mem::take(&mut self.credited_in_done);
         // Packing is encoding (as in `seal`).
         let t0 = Instant::now();
-        let finished = pack_done(self.id, &self.done);
+        let mut finished = std::mem::take(&mut self.done_wire);
+        pack_done_into(self.id, &self.done, &mut finished);
         self.done.clear();
         self.excluded += t0.elapsed().as_secs_f64();
-        self.send_host(ToHost::Done {
+        let body = ToHost::Done {
             node: self.id,
             finished,
-        })
+        };
+        let sent = self.enqueue(self.link_index(Link::Host), &body);
+        // The buffer, for the next batch.
+        if let ToHost::Done { finished, .. } = body {
+            self.done_wire = finished;
+        }
+        sent
     }
 
     /// How long (virtual seconds) a batch may wait for more paths: a few
