@@ -68,10 +68,13 @@ pub fn to_display(linear: &[[f32; 3]]) -> Vec<[f32; 3]> {
 /// 8-bit sRGB bytes of linear pixels.
 pub fn to_srgb8(linear: &[[f32; 3]]) -> Vec<u8> {
     let table = Srgb8::get();
-    linear
-        .iter()
-        .flat_map(|p| p.map(|c| table.byte(c)))
-        .collect()
+    let mut out = vec![0u8; linear.len() * 3];
+    for (o, p) in out.chunks_exact_mut(3).zip(linear) {
+        for (o, &c) in o.iter_mut().zip(p) {
+            *o = table.byte(c);
+        }
+    }
+    out
 }
 
 /// The 8-bit sRGB byte of a linear value, computed directly: what
