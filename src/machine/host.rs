@@ -939,7 +939,6 @@ impl Run {
                         if let Err(e) = self.finish(&f) {
                             failures.push((f.origin, e));
                         }
-                        Ok(())
                     })
                     .map_err(|e| Error::Render(format!("node {node}: {e}")))?;
                     progress(self.finished - before);

@@ -451,7 +451,7 @@ impl<'a> Node<'a> {
     }
 
     fn run(&mut self) -> Result<(), NodeError> {
-        self.send_host(ToHost::Loaded { node: self.id })?;
+        self.send_host(&ToHost::Loaded { node: self.id })?;
         loop {
             self.receive_all()?;
             if self.stopping {
@@ -481,7 +481,7 @@ impl<'a> Node<'a> {
             let worked = self.work_for_a_while()?;
             if !worked {
                 // About to idle: what it sends now carries its measured
-                // clock, not an estimate.
+                // clock, not an estimate, and the wait is not counted.
                 self.close_cpu_window();
             }
             self.announce(worked)?;
@@ -491,7 +491,6 @@ impl<'a> Node<'a> {
                     .filter(|&i| !self.waiting[i].is_empty())
                     .map(|i| self.link_of(i))
                     .collect();
-                self.close_cpu_window();
                 self.links.wait(&sending);
             }
         }
@@ -503,7 +502,7 @@ impl<'a> Node<'a> {
         self.report.cells_visited = c.cells_visited;
         self.report.subtree_evaluations = c.subtree_evaluations;
         let report = Box::new(std::mem::take(&mut self.report));
-        self.send_host(ToHost::Report(report))?;
+        self.send_host(&ToHost::Report(report))?;
         // The report must leave before the thread ends.
         while !self.waiting[self.link_index(Link::Host)].is_empty() {
             self.flush(true)?;
@@ -798,7 +797,7 @@ impl<'a> Node<'a> {
                 None if !self.generated_reported => {
                     self.generated_reported = true;
                     let samples = self.primaries.generated;
-                    self.send_host(ToHost::Generated {
+                    self.send_host(&ToHost::Generated {
                         node: self.id,
                         samples,
                     })?;
@@ -1065,7 +1064,7 @@ impl<'a> Node<'a> {
             node: self.id,
             finished,
         };
-        let sent = self.enqueue(self.link_index(Link::Host), &body);
+        let sent = self.send_host(&body);
         // The buffer, for the next batch.
         if let ToHost::Done { finished, .. } = body {
             self.done_wire = finished;
@@ -1114,9 +1113,9 @@ impl<'a> Node<'a> {
         }
     }
 
-    fn send_host(&mut self, body: ToHost) -> Result<(), NodeError> {
+    fn send_host(&mut self, body: &ToHost) -> Result<(), NodeError> {
         let i = self.link_index(Link::Host);
-        self.enqueue(i, &body)
+        self.enqueue(i, body)
     }
 
     /// Stamps, encodes and queues a message on link `i`; the clock pays
