@@ -283,8 +283,8 @@ impl Plan {
         if first.window > 0 {
             // Rays that cross between nodes at every turn: the super cells
             // added for the balance may be what sends them (`SCATTERED`).
-            let per_pixel =
-                first.crossings as f64 / mapping::prepass_pixels(opts.width, opts.height) as f64;
+            let per_pixel = first.crossings as f64
+                / mapping::prepass_pixels(opts.width, opts.height, 1 << topo.dimension) as f64;
             if per_pixel <= SCATTERED {
                 return first;
             }
