@@ -701,6 +701,35 @@ mod tests {
         }
     }
 
+    /// The pre-pass samples coarser only where every node keeps its
+    /// `PREPASS_PER_NODE` pixels, within `PREPASS_STRIDE` and
+    /// `PREPASS_STRIDE_MAX`.
+    #[test]
+    fn the_prepass_stride_keeps_enough_pixels_per_node() {
+        assert_eq!(prepass_stride(1024, 1024, 1), PREPASS_STRIDE_MAX);
+        assert_eq!(prepass_stride(1024, 1024, 2), PREPASS_STRIDE_MAX);
+        assert_eq!(prepass_stride(1024, 1024, 32), PREPASS_STRIDE);
+        // Too small an image for 512 pixels a node: the finest stride.
+        assert_eq!(prepass_stride(64, 48, 32), PREPASS_STRIDE);
+        for (w, h) in [(1024, 1024), (640, 480), (4096, 2160), (97, 5)] {
+            for d in 0..8 {
+                let n = 1usize << d;
+                let stride = prepass_stride(w, h, n);
+                assert!((PREPASS_STRIDE..=PREPASS_STRIDE_MAX).contains(&stride));
+                let per_node = prepass_pixels(w, h, n) / n as u64;
+                // Coarser than the finest only with the pixels to spare,
+                // and no coarser stride would have kept them.
+                if stride > PREPASS_STRIDE {
+                    assert!(per_node >= PREPASS_PER_NODE, "{w}x{h}, {n} nodes");
+                }
+                if stride < PREPASS_STRIDE_MAX {
+                    let coarser = prepass_pixels_at(w, h, stride + 1) / n as u64;
+                    assert!(coarser < PREPASS_PER_NODE, "{w}x{h}, {n} nodes");
+                }
+            }
+        }
+    }
+
     /// The mapping is the same on every run (the statistics of a render,
     /// hops and bytes, depend on it): no hash map's order leaks into it.
     #[test]
