@@ -638,6 +638,18 @@ impl<'a> Node<'a> {
         Ok(worked)
     }
 
+    /// Runs `f`, the emulation's own work (packing, encoding, passing a
+    /// path on), and takes its host time off the slice's computing
+    /// (`excluded`) once: what `f` itself excluded, when it nests another
+    /// such call (forwarding seals and enqueues), is part of that time,
+    /// not added again.
+    fn excluding<R>(&mut self, f: impl FnOnce(&mut Self) -> R) -> R {
+        let (t0, before) = (Instant::now(), self.excluded);
+        let r = f(self);
+        self.excluded = before + t0.elapsed().as_secs_f64();
+        r
+    }
+
     /// Settles the window before the node waits, so that the wait is not
     /// counted as work (`work_for_a_while`).
     fn close_cpu_window(&mut self) {
@@ -814,13 +826,8 @@ impl<'a> Node<'a> {
             } else {
                 // Passing a path on costs the modelled node a message
                 // start-up (`send_cost`), not the host's time to do it.
-                // The whole of it is excluded once: packing and encoding
-                // inside (`seal`, `enqueue`) exclude their own time, which
-                // added again here would be taken off twice.
-                let (t0, before) = (Instant::now(), self.excluded);
                 self.report.paths_forwarded += 1;
-                self.route(routed)?;
-                self.excluded = before + t0.elapsed().as_secs_f64();
+                self.excluding(|n| n.route(routed))?;
             }
             return Ok(true);
         }
@@ -1058,11 +1065,12 @@ impl<'a> Node<'a> {
         self.done_urgent = None;
         self.credited_waiting += std::mem::take(&mut self.credited_in_done);
         // Packing is encoding (as in `seal`).
-        let t0 = Instant::now();
-        let mut finished = std::mem::take(&mut self.done_wire);
-        pack_done_into(self.id, &self.done, &mut finished);
-        self.done.clear();
-        self.excluded += t0.elapsed().as_secs_f64();
+        let finished = self.excluding(|n| {
+            let mut finished = std::mem::take(&mut n.done_wire);
+            pack_done_into(n.id, &n.done, &mut finished);
+            n.done.clear();
+            finished
+        });
         let body = ToHost::Done {
             node: self.id,
             finished,
@@ -1099,9 +1107,7 @@ impl<'a> Node<'a> {
         }
         let held: usize = paths.iter().map(|r| r.path.bytes()).sum();
         // Packing is encoding: the link model's, not the node's compute.
-        let t0 = Instant::now();
-        let body = ToNode::Rays(pack(&paths, &self.path_context()));
-        self.excluded += t0.elapsed().as_secs_f64();
+        let body = self.excluding(|n| ToNode::Rays(pack(&paths, &n.path_context())));
         self.enqueue(i, &body)?;
         self.release(held);
         Ok(())
@@ -1124,13 +1130,13 @@ impl<'a> Node<'a> {
     /// Stamps, encodes and queues a message on link `i`; the clock pays
     /// its sending cost.
     fn enqueue<T: serde::Serialize>(&mut self, i: usize, body: &T) -> Result<(), NodeError> {
-        let t0 = Instant::now();
-        let (model, clock) = (self.model, &mut self.clock);
-        let len = append_stamped(&mut self.waiting[i], body, |len| {
-            *clock += model.send_cost(len);
-            *clock
+        let len = self.excluding(|n| {
+            let (model, clock) = (n.model, &mut n.clock);
+            append_stamped(&mut n.waiting[i], body, |len| {
+                *clock += model.send_cost(len);
+                *clock
+            })
         })?;
-        self.excluded += t0.elapsed().as_secs_f64();
         self.carries[i] = true;
         self.report.messages_sent += 1;
         self.report.bytes_sent += len.wire as u64;
