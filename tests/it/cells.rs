@@ -1337,3 +1337,31 @@ fn lights_outside_the_solid_are_told_apart_from_lights_inside_or_on_it() {
     // glass sphere is at the top.
     assert!(!f.is_exposed(0) && !f.is_exposed(1) && f.is_exposed(2));
 }
+
+/// The super cells are cut into cells on several threads for large scenes
+/// (`CellOptions::build_threads`); the structure must not depend on how
+/// many: the same cells, subtrees and leaf lists in the same order.
+#[test]
+fn the_structure_is_the_same_for_any_number_of_build_threads() {
+    let model = hypercast::r#gen::sphereflake::sphereflake(3);
+    let scene = compile_model(&model, Path::new("sf3")).unwrap().0;
+    let json = |threads: usize| {
+        let opts = CellOptions {
+            build_threads: threads,
+            min_super_cells: 24,
+            ..CellOptions::default()
+        };
+        let mut cs = CellStructure::build(&scene, 96, 80, opts);
+        cs.stats.build_seconds = 0.0;
+        serde_json::to_string(&cs).unwrap()
+    };
+    let one = json(1);
+    assert!(json(1) == one, "two builds on one thread differ");
+    assert!(one.len() > 10_000, "a structure worth cutting in parallel");
+    for threads in [2, 3, 7] {
+        assert!(
+            json(threads) == one,
+            "{threads} threads built another structure"
+        );
+    }
+}
