@@ -870,8 +870,9 @@ struct CutCell {
 }
 
 /// Super cells of at least this many listed primitives in all make the
-/// depth partitions worth a second thread by default (a thread costs tens of
-/// microseconds; the sphereflake of level 4 lists 50,000).
+/// depth partitions worth a second thread by default (a thread costs tens
+/// of microseconds; the sphereflake of level 4 at 512x512 lists 13,812,
+/// cut in 9 ms on one thread).
 const PARALLEL_CUT_PRIMS: usize = 4096;
 
 /// Cuts every super cell of a region into cells along depth (section 3.3,
