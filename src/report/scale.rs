@@ -536,7 +536,8 @@ type Curve = (&'static str, RGBColor, fn(&ScaleRow) -> f64);
 type Chart<'a, 'b, Y> = ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, Y>>;
 
 /// A panel with a linear axis from 0 to above its highest finite value
-/// (and at least above 1, where speedup and balance are ideal).
+/// (and at least above 1, where speedup and balance are ideal), with room
+/// at the top for the legend's rows, so that it covers no curve.
 fn linear_panel(
     area: &DrawingArea<BitMapBackend<'_>, Shift>,
     caption: &str,
@@ -550,7 +551,7 @@ fn linear_panel(
         .flat_map(|r| series.iter().map(move |(_, _, f)| f(r)))
         .filter(|v| v.is_finite())
         .fold(1.0, f64::max)
-        * 1.15;
+        * (1.15 + 0.07 * series.len() as f64);
     let mut c = ChartBuilder::on(area)
         .caption(caption, ("sans-serif", 16))
         .margin(12)
