@@ -369,6 +369,7 @@ impl CellStructure {
             for cells in cut {
                 first_cell.push(zlos.len() as u32);
                 for cell in cells {
+                    prim_counts.push(cell.prims.len());
                     let subtree = if cell.prims.is_empty() {
                         NO_SUBTREE
                     } else {
@@ -380,7 +381,6 @@ impl CellStructure {
                     };
                     zlos.push(cell.zlo);
                     subtree_of.push(subtree);
-                    prim_counts.push(cell.count);
                 }
             }
             first_cell.push(zlos.len() as u32);
@@ -862,10 +862,9 @@ fn subtree_leaf_lists(
 
 /// One cell of a super cell's depth partition, before its subtree is
 /// built: its primitives, sorted (the key under which equal subtrees are
-/// shared), how many, and its near depth.
+/// shared), and its near depth.
 struct CutCell {
     prims: Vec<u32>,
-    count: usize,
     zlo: f32,
 }
 
@@ -911,7 +910,6 @@ fn cut_super_cells(
             debug_assert_eq!(f64::from(zlo as f32), zlo, "a depth cut is an f32");
             cells.push(CutCell {
                 prims,
-                count: cell_prims.len(),
                 zlo: zlo as f32,
             });
         });
