@@ -111,6 +111,24 @@ impl Aabb {
         ]
     }
 
+    /// Each bound moved outwards by `rel` times its own magnitude. Unlike
+    /// `inflated`, the near end of a box that reaches very far stays where
+    /// it is: a floor box from x = -1e30 to 4, inflated by 1e-12 of its
+    /// largest magnitude, reached x = 1e18 as well, and the crossings of
+    /// its edges with the eye plane, between corners both 1e18 or more
+    /// away, came out some 100 units off (`cells::projection`): the floor
+    /// was left out of the cells around the camera.
+    pub fn inflated_each(&self, rel: f64) -> Aabb {
+        if self.is_empty() {
+            return *self;
+        }
+        let tiny = Vec3::splat(f64::MIN_POSITIVE);
+        Aabb {
+            min: self.min - self.min.abs() * rel - tiny,
+            max: self.max + self.max.abs() * rel + tiny,
+        }
+    }
+
     /// Grown on every side by `rel` times the largest magnitude of its
     /// coordinates (a relative, not an absolute, tolerance), so that objects
     /// are assigned to cells over closed, slightly inflated bounds.
@@ -301,6 +319,17 @@ impl Affine {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn inflating_each_bound_keeps_a_far_reaching_boxs_near_end_near() {
+        let b = Aabb::new(Vec3::new(-1e30, -6.0, -0.1), Vec3::new(4.0, 4.0, 0.0));
+        let each = b.inflated_each(1e-12);
+        assert!(each.contains(b.min) && each.contains(b.max));
+        assert!(each.max.x > 4.0 && each.max.x < 4.0 + 1e-10, "{each:?}");
+        assert!(each.min.x < -1e30 && each.max.z > 0.0 && each.min.z < -0.1);
+        // `inflated` pads by the axis's largest magnitude: 1e18 here.
+        assert!(b.inflated(1e-12).max.x >= 1e18);
+    }
 
     #[test]
     fn empty_box_does_not_corrupt_union() {

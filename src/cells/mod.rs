@@ -286,7 +286,7 @@ impl CellStructure {
         let mut prim_box = vec![Aabb::EMPTY; scene.primitives.len()];
         for (i, n) in tree.nodes.iter().enumerate() {
             if let CsgNode::Leaf(p) = n {
-                prim_box[p.index()] = minimal[i].inflated(1e-12);
+                prim_box[p.index()] = minimal[i].inflated_each(1e-12);
             }
         }
         let culled = prim_box.iter().filter(|b| b.is_empty()).count();

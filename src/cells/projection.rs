@@ -154,8 +154,7 @@ impl View {
         for (i, j) in EDGES {
             let (a, c) = (corners[i], corners[j]);
             if (a.z < 0.0 && c.z > 0.0) || (a.z > 0.0 && c.z < 0.0) {
-                let s = a.z / (a.z - c.z);
-                let mut p = a + (c - a) * s;
+                let mut p = plane_crossing(a, c, a.z, c.z);
                 p.z = 0.0;
                 verts.push(p);
             }
@@ -344,8 +343,7 @@ impl View {
                             out += 1;
                         }
                         if (dp >= 0.0) != (dq >= 0.0) {
-                            let s = dp / (dp - dq);
-                            b[out] = p + (q - p) * s;
+                            b[out] = plane_crossing(p, q, dp, dq);
                             out += 1;
                         }
                     }
@@ -372,6 +370,24 @@ impl View {
         let (z0, z1) = inflate(z0, z1, 0);
         let pad = (z1 - z0) * 1e-9;
         Some(((z0 - pad).max(rz0), (z1 + pad).min(rz1)))
+    }
+}
+
+/// Where the segment from `p` to `q` crosses a plane, given their signed
+/// distances `dp` and `dq` to it (of opposite signs), interpolated from
+/// the endpoint nearer the plane. From the far one, the step `(q − p)·s`
+/// carries the rounding of the whole segment's length: with one end 1e20
+/// away, a crossing next to the camera comes out about 1e4 off. (Together
+/// with the build's inflation, which then moved a far-reaching floor's
+/// near end 1e8 away, that left the floor out of the cells around the
+/// camera; `Aabb::inflated_each`.) From the near one, the error scales
+/// with the distance to the crossing, the least the inputs allow.
+#[inline]
+fn plane_crossing(p: Vec3, q: Vec3, dp: f64, dq: f64) -> Vec3 {
+    if dp.abs() <= dq.abs() {
+        p + (q - p) * (dp / (dp - dq))
+    } else {
+        q + (p - q) * (dq / (dq - dp))
     }
 }
 
@@ -499,6 +515,113 @@ impl CamRay {
         match (region == Region::Front, front_first) {
             (true, true) | (false, false) => (f64::NEG_INFINITY, t0),
             _ => (t0, f64::INFINITY),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A camera at the origin looking along `dir`, z up.
+    fn view(dir: Vec3) -> View {
+        let forward = dir.normalize();
+        let right = forward.cross(Vec3::Z).normalize();
+        View {
+            eye: Vec3::ZERO,
+            right,
+            up: right.cross(forward),
+            forward,
+        }
+    }
+
+    /// A box reaching up to 1e20 behind the camera: its part just in front
+    /// of the eye plane projects far out on the screen, on the sides its
+    /// edges' crossings with the eye plane give, and the rectangle holds it.
+    #[test]
+    fn a_box_reaching_far_behind_the_eye_covers_its_part_near_the_eye_plane() {
+        for dir in [
+            Vec3::new(1.0, 0.3, -0.2),
+            Vec3::new(1.0, -0.7, 0.1),
+            Vec3::new(0.4, 1.0, -0.5),
+        ] {
+            let v = view(dir);
+            for far in [1e12, 1e16, 1e20] {
+                let b = Aabb::new(Vec3::new(-far, 0.5, -0.5), Vec3::new(4.0, 2.0, 0.25));
+                let (r, _, _) = v.project_box(&b, Region::Front).expect("in front");
+                // Points of the box's x-edges just in front of the eye plane.
+                for (y, z) in [(0.5, -0.5), (0.5, 0.25), (2.0, -0.5), (2.0, 0.25)] {
+                    for eps in [1e-3, 1e-6] {
+                        // forward · (x, y, z) = eps, solved for x.
+                        let f = v.forward;
+                        let x = (eps - f.y * y - f.z * z) / f.x;
+                        if !(-far..=4.0).contains(&x) {
+                            continue;
+                        }
+                        let c = v.point(Vec3::new(x, y, z));
+                        let (sx, sy) = (c.x / c.z, c.y / c.z);
+                        assert!(
+                            r.x0 <= sx && sx <= r.x1 && r.y0 <= sy && sy <= r.y1,
+                            "dir {dir}, far {far:e}: ({sx:e}, {sy:e}) outside {r:?}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    /// The depth range of a far-reaching box over a narrow super cell near
+    /// the screen's centre holds every point of the box that projects into
+    /// it (sampled along the box's edges and across its faces).
+    #[test]
+    fn depth_ranges_of_a_far_reaching_box_hold_its_points() {
+        for dir in [Vec3::new(-1.0, 0.3, -0.2), Vec3::new(-0.774, 0.624, -0.107)] {
+            let v = view(dir);
+            for far in [1e12, 1e20, 1e30] {
+                let b = Aabb::new(Vec3::new(-far, -6.0, -0.1), Vec3::new(4.0, 4.0, 0.0));
+                let corners = v.cam_box(&b);
+                for (x0, y0) in [(-0.01, -0.35), (0.0, -0.3), (0.2, -0.5), (-0.3, -0.2)] {
+                    let r = Rect {
+                        x0,
+                        x1: x0 + 0.02,
+                        y0,
+                        y1: y0 + 0.02,
+                    };
+                    let range = View::depth_range_in(&corners, Region::Front, &r);
+                    // Points of the floor's top and sides, near the camera.
+                    let mut k = 0u64;
+                    for i in 0..400 {
+                        for j in 0..400 {
+                            k = k
+                                .wrapping_mul(6364136223846793005)
+                                .wrapping_add(1442695040888963407);
+                            let fx = (k >> 11) as f64 / (1u64 << 53) as f64;
+                            let x = 4.0 - 60.0 * (i as f64 + fx) / 400.0;
+                            let y = -6.0 + 10.0 * (j as f64) / 399.0;
+                            for z in [0.0, -0.1] {
+                                let c = v.point(Vec3::new(x, y, z));
+                                if c.z <= 0.0 {
+                                    continue;
+                                }
+                                let (sx, sy) = (c.x / c.z, c.y / c.z);
+                                if sx < r.x0 || sx >= r.x1 || sy < r.y0 || sy >= r.y1 {
+                                    continue;
+                                }
+                                let (z0, z1) = range.unwrap_or_else(|| {
+                                    panic!(
+                                        "dir {dir}, far {far:e}, {r:?}: no range, but {c} is there"
+                                    )
+                                });
+                                assert!(
+                                    z0 <= c.z && c.z <= z1,
+                                    "dir {dir}, far {far:e}, {r:?}: depth {} outside [{z0}, {z1}]",
+                                    c.z
+                                );
+                            }
+                        }
+                    }
+                }
+            }
         }
     }
 }

@@ -674,6 +674,45 @@ fn case_23_scaled_tiny_and_huge_renders_the_same() {
     }
 }
 
+/// Beyond the catalogue, one object over the whole range of scales: a
+/// ground box reaching from under the scene out to 1e20, 1e30 or 1e50
+/// (`scene::load::MAX_COORDINATE`) on one side, a user's infinite floor,
+/// seen directly and in two mirrors. Found by mutating the bundled scenes'
+/// numbers: from about 1e20 the cells lost the floor around the camera
+/// (1,191 of 3,072 pixels differed from Roth's at 1e20), because the
+/// build inflated the box by its largest magnitude, so that its near end
+/// moved 1e8 (at 1e30, 1e18) past the camera, and the crossings of its
+/// edges with the eye plane, between two far corners, came out some 100
+/// units off (`Aabb::inflated_each`, `projection::plane_crossing`).
+#[test]
+fn a_ground_reaching_1e50_away_is_found_near_the_camera() {
+    for far in [1e20, 1e30, 1e50] {
+        let scene = util::scene(&format!(
+            "(camera: (eye: (1.6, -2.5, 1.3), look_at: (-2, 0.4, 0.8), fov_y: 50, width: 64, height: 48),
+              background: (0.2, 0.25, 0.35), max_depth: 10,
+              lights: [(position: (0, -3, 4))],
+              materials: {{
+                \"mirror\": (color: (0.9, 0.9, 0.9), diffuse: 0.05, specular: 0.5, shininess: 200, reflect: 0.85),
+                \"red\": (color: (0.85, 0.15, 0.1), specular: 0.4, shininess: 40),
+              }},
+              objects: [
+                Box(min: (-2.1, -3, 0), max: (-2, 3, 3), material: \"mirror\"),
+                Box(min: (2, -3, 0), max: (2.1, 3, 3), material: \"mirror\"),
+                Sphere(center: (0, 0.5, 0.6), radius: 0.6, material: \"red\"),
+                Box(min: ({x:?}, -6, -0.1), max: (4, 4, 0)),
+              ])",
+            x = -far
+        ));
+        let (film, _) = assert_renders_equal(&scene, 64, 48);
+        // The floor fills the bottom row.
+        let bottom = &film.sums()[64 * 47..];
+        assert!(
+            bottom.iter().all(|p| *p != background(&scene)),
+            "reaching {far:e}: the floor is missing"
+        );
+    }
+}
+
 // ---------------------------------------------------------------------------
 // ROBUSTNESS.md 24: spawned rays never hit the surface they leave.
 
