@@ -68,6 +68,25 @@ impl SceneSyntax {
     }
 }
 
+/// The largest magnitude a coordinate may have: camera and light positions
+/// and every primitive's bounds in the world. Squares and higher powers of
+/// coordinates appear in the intersection arithmetic; a sphere of radius
+/// 1e77 around the camera rendered differently with the cells and with
+/// Roth (the square of its radius times another is past f64's 1.8e308),
+/// one of 1e75 the same. This limit leaves a factor of 1e25 below that,
+/// and is far beyond any scene's needs (a ground box reaching 1e50 away is
+/// an infinite plane in every picture).
+pub const MAX_COORDINATE: f64 = 1e50;
+
+/// The largest colour component (of materials, lights, the background and
+/// the ambient light) and material coefficient (`ambient`, `diffuse`,
+/// `specular`, `reflect`, `transmit`) a scene may give. Products of a few
+/// of them and a ray's weight must stay finite: a material colour of 1e50
+/// made a shadow ray's weight, kept in f32, infinite. (Weights that grow
+/// bounce after bounce, under a `reflect` above 1, are held at f32's
+/// largest: `trace::to_weight`.)
+pub const MAX_INTENSITY: f64 = 1e30;
+
 /// The largest image side `check_resolution` accepts.
 pub const MAX_SIDE: u32 = 65536;
 /// The largest pixel count `check_resolution` accepts (2^28, e.g. 16384²).
@@ -593,7 +612,7 @@ pub(crate) fn compile(model: &SceneFile, file: &Path) -> Result<(Scene, Vec<Stri
     check_colour(model.ambient, "ambient", || "ambient".into()).map_err(|(p, m)| invalid(p, m))?;
     let mut lights = Vec::with_capacity(model.lights.len());
     for (i, l) in model.lights.iter().enumerate() {
-        check_finite(l.position, "position", || format!("lights[{i}].position"))
+        check_position(l.position, "position", || format!("lights[{i}].position"))
             .map_err(|(p, m)| invalid(p, m))?;
         check_colour(l.color, "color", || format!("lights[{i}].color"))
             .map_err(|(p, m)| invalid(p, m))?;
@@ -668,8 +687,8 @@ pub(crate) fn compile(model: &SceneFile, file: &Path) -> Result<(Scene, Vec<Stri
 type Found = (String, String);
 
 fn compile_camera(cam: &model::Camera) -> std::result::Result<Camera, Found> {
-    check_finite(cam.eye, "eye", || "camera.eye".into())?;
-    check_finite(cam.look_at, "look_at", || "camera.look_at".into())?;
+    check_position(cam.eye, "eye", || "camera.eye".into())?;
+    check_position(cam.look_at, "look_at", || "camera.look_at".into())?;
     check_finite(cam.up, "up", || "camera.up".into())?;
     check_finite_scalar(cam.fov_y, "fov_y", || "camera.fov_y".into())?;
     if !(cam.fov_y > 0.0 && cam.fov_y < 180.0) {
@@ -743,6 +762,12 @@ fn compile_materials(
                 check_finite_scalar(v, field, || at(name, field))?;
                 if v < 0.0 {
                     return Err((at(name, field), format!("{field} must be >= 0, got {v}")));
+                }
+                if v > MAX_INTENSITY && field != "shininess" {
+                    return Err((
+                        at(name, field),
+                        format!("{field} is {v:e}, above {MAX_INTENSITY:e}"),
+                    ));
                 }
             }
         }
@@ -1146,6 +1171,18 @@ impl<'m> Compiler<'m> {
                 format!("{kind} placed in the world has bounds that are not finite (coordinates too large)"),
             ));
         }
+        if !b.is_empty() {
+            let reach = b.min.abs().max(b.max.abs()).max_element();
+            if reach > MAX_COORDINATE {
+                return Err(self.invalid(
+                    place.path(),
+                    format!(
+                        "{kind} placed in the world reaches {reach:e}, beyond ±{MAX_COORDINATE:e}: \
+                         coordinates this large overflow the intersection arithmetic"
+                    ),
+                ));
+            }
+        }
         let id = PrimId(self.primitives.len() as u32);
         self.primitives.push(prim);
         Ok(self.tree.leaf(id))
@@ -1174,6 +1211,31 @@ fn check_finite(
             format!("{field} must be finite, got {}", fmt_vec(v)),
         ))
     }
+}
+
+/// A position: finite and within `MAX_COORDINATE` of the origin.
+fn check_position(
+    v: Vector,
+    field: &str,
+    path: impl FnOnce() -> String,
+) -> std::result::Result<(), Found> {
+    // (NaN is not within the bound either: it gets `check_finite`'s word.)
+    if v.iter().all(|x| x.abs() <= MAX_COORDINATE) {
+        return Ok(());
+    }
+    let path = path();
+    check_finite(v, field, || path.clone())?;
+    let worst = v
+        .iter()
+        .copied()
+        .fold(0.0f64, |a, x| if x.abs() > a.abs() { x } else { a });
+    Err((
+        path,
+        format!(
+            "{field} has a coordinate of {worst:e}, beyond ±{MAX_COORDINATE:e}: coordinates \
+             this large overflow the intersection arithmetic"
+        ),
+    ))
 }
 
 fn check_finite_scalar(
@@ -1207,6 +1269,12 @@ fn check_colour(
                 "{field} must have no negative component, got {}",
                 fmt_vec(c)
             ),
+        ));
+    }
+    if let Some(x) = c.iter().find(|x| **x > MAX_INTENSITY) {
+        return Err((
+            path(),
+            format!("{field} has a component of {x:e}, above {MAX_INTENSITY:e}"),
         ));
     }
     Ok(())

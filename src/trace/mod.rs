@@ -82,7 +82,11 @@ impl RayJob {
 }
 
 fn to_weight(c: Color) -> [f32; 3] {
-    [c.x as f32, c.y as f32, c.z as f32]
+    // Held at f32's largest, not rounded to infinity: under mirrors with
+    // `reflect` above 1 a weight grows with every bounce (4^64 at depth
+    // 64), and an infinite one would make the contributions infinite or
+    // NaN. (Weights are never negative: colours and coefficients are not.)
+    c.to_array().map(|x| x.min(f64::from(f32::MAX)) as f32)
 }
 
 /// The nearest CSG boundary a ray meets.

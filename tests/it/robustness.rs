@@ -713,6 +713,102 @@ fn a_ground_reaching_1e50_away_is_found_near_the_camera() {
     }
 }
 
+/// The spans of the numbers in a scene's text (comments included: a
+/// mutant there changes nothing, which costs one of the tries).
+fn number_spans(text: &str) -> Vec<(usize, usize)> {
+    let b = text.as_bytes();
+    let mut spans = Vec::new();
+    let mut i = 0;
+    while i < b.len() {
+        let starts =
+            b[i].is_ascii_digit() || (b[i] == b'-' && b.get(i + 1).is_some_and(u8::is_ascii_digit));
+        let after_word = i > 0 && (b[i - 1].is_ascii_alphanumeric() || b[i - 1] == b'_');
+        if !starts || after_word {
+            i += 1;
+            continue;
+        }
+        let start = i;
+        i += 1;
+        while i < b.len()
+            && (b[i].is_ascii_digit()
+                || b"._eE".contains(&b[i])
+                || (b[i] == b'-' && b"eE".contains(&b[i - 1])))
+        {
+            i += 1;
+        }
+        spans.push((start, i));
+    }
+    spans
+}
+
+/// The bundled scenes with one to three of their numbers made extreme, as
+/// a fuzzer would: each mutant loads with an error, or renders with the
+/// cells exactly as Roth renders it (12x9, both BSP rules), and never
+/// panics. Such mutants found the far-reaching floor above, the overflow
+/// past 1e77 behind `scene::load::MAX_COORDINATE`, and (this test, in the
+/// dev profile's debug assertions) a material colour of 1e50 whose
+/// shadow rays' weights were infinite (`MAX_INTENSITY`).
+#[test]
+fn bundled_scenes_with_extreme_numbers_load_with_an_error_or_render_as_roth_does() {
+    use hypercast::scene::{SceneSyntax, parse_scene_str};
+    const VALUES: [&str; 14] = [
+        "1e50", "-1e50", "1e30", "-1e30", "1e20", "-1e20", "1e-30", "0", "-0", "1e6", "-1e6", "3",
+        "0.001", "65536",
+    ];
+    let mut seeds = Vec::new();
+    for dir in ["scenes", "scenes/small"] {
+        for e in std::fs::read_dir(util::repo(dir)).unwrap().flatten() {
+            let path = e.path();
+            let syntax = match path.extension().and_then(|x| x.to_str()) {
+                Some("ron") => SceneSyntax::Ron,
+                // The level-2 sphereflake: 91 spheres; the larger ones
+                // take the test's time for the same code.
+                Some("nff") if path.ends_with("sphereflake2.nff") => SceneSyntax::Nff,
+                _ => continue,
+            };
+            let text = std::fs::read_to_string(&path).unwrap();
+            let spans = number_spans(&text);
+            seeds.push((path, syntax, text, spans));
+        }
+    }
+    assert!(seeds.len() >= 8, "{} scenes", seeds.len());
+    let mut rng = Rng(0x5EED_F00D_1234_5678);
+    let (mut rendered, mut refused) = (0, 0);
+    for _ in 0..500 {
+        let (path, syntax, text, spans) = &seeds[rng.below(seeds.len())];
+        let mut picked: Vec<(usize, usize)> = (0..1 + rng.below(3))
+            .map(|_| spans[rng.below(spans.len())])
+            .collect();
+        picked.sort_unstable();
+        picked.dedup();
+        let mut mutant = text.clone();
+        let mut what = Vec::new();
+        // From the back, so that earlier spans stay where they were.
+        for &(a, b) in picked.iter().rev() {
+            let value = VALUES[rng.below(VALUES.len())];
+            what.push(format!("{} -> {value}", &text[a..b]));
+            mutant.replace_range(a..b, value);
+        }
+        let Ok(scene) = parse_scene_str(&mutant, *syntax, path) else {
+            refused += 1;
+            continue;
+        };
+        rendered += 1;
+        let result = std::panic::catch_unwind(|| assert_renders_equal(&scene, 12, 9));
+        assert!(
+            result.is_ok(),
+            "{} with {}: the accelerators differ (above)",
+            path.display(),
+            what.join(", ")
+        );
+    }
+    // Both outcomes occur, or the mutants test nothing.
+    assert!(
+        rendered >= 40 && refused >= 10,
+        "{rendered} rendered, {refused} refused"
+    );
+}
+
 // ---------------------------------------------------------------------------
 // ROBUSTNESS.md 24: spawned rays never hit the surface they leave.
 
