@@ -368,7 +368,16 @@ impl View {
         }
         let (rz0, rz1) = region.depth_range();
         let (z0, z1) = inflate(z0, z1, 0);
-        let pad = (z1 - z0) * 1e-9;
+        // Also by the box's own distance from the eye: a walk crosses a
+        // depth plane at a `t` rounded at the scale of its distance, not of
+        // the plane's depth. A wall 1e-7 behind the eye plane, seen from 7
+        // away in a mirror, had its cell end 1.2e-15 past it (padded by
+        // its depth alone), within a rounding of the crossing: the walk
+        // left the cell before the hit and missed the wall.
+        let scale = corners
+            .iter()
+            .fold(0.0f64, |m, c| m.max(c.abs().max_element()));
+        let pad = (z1 - z0) * 1e-9 + scale * INFLATE_REL;
         Some(((z0 - pad).max(rz0), (z1 + pad).min(rz1)))
     }
 }
