@@ -750,24 +750,24 @@ fn compile_materials(
         if let Some(c) = m.color {
             check_colour(c, "color", || at(name, "color"))?;
         }
-        for (field, value) in [
-            ("ambient", m.ambient),
-            ("diffuse", m.diffuse),
-            ("specular", m.specular),
-            ("shininess", m.shininess),
-            ("reflect", m.reflect),
-            ("transmit", m.transmit),
+        // Each with its largest value: the coefficients scale light, so
+        // `MAX_INTENSITY`; `shininess` is an exponent of a cosine at most
+        // 1, whose power stays at most 1 whatever it is.
+        for (field, value, max) in [
+            ("ambient", m.ambient, MAX_INTENSITY),
+            ("diffuse", m.diffuse, MAX_INTENSITY),
+            ("specular", m.specular, MAX_INTENSITY),
+            ("shininess", m.shininess, f64::INFINITY),
+            ("reflect", m.reflect, MAX_INTENSITY),
+            ("transmit", m.transmit, MAX_INTENSITY),
         ] {
             if let Some(v) = value {
                 check_finite_scalar(v, field, || at(name, field))?;
                 if v < 0.0 {
                     return Err((at(name, field), format!("{field} must be >= 0, got {v}")));
                 }
-                if v > MAX_INTENSITY && field != "shininess" {
-                    return Err((
-                        at(name, field),
-                        format!("{field} is {v:e}, above {MAX_INTENSITY:e}"),
-                    ));
+                if v > max {
+                    return Err((at(name, field), format!("{field} is {v:e}, above {max:e}")));
                 }
             }
         }
