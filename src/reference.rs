@@ -3,7 +3,7 @@
 //! changes a span list, see `CsgTree::cull_bounds`). Written for
 //! obviousness; every faster path is tested against it.
 
-use crate::csg::{EvalCounts, Evaluator, PrimHits};
+use crate::csg::{EvalCounts, Evaluator, PrimHits, PrimId};
 use crate::geom::Ray;
 use crate::scene::Scene;
 use crate::trace::{Hit, Tracer};
@@ -15,6 +15,8 @@ pub struct RothTracer<'a> {
     /// Primitive intersection tests performed.
     pub intersection_tests: u64,
     pub counts: EvalCounts,
+    /// The primitive the current job's ray leaves (`Tracer::leaving`).
+    leaving: Option<PrimId>,
 }
 
 impl<'a> RothTracer<'a> {
@@ -24,6 +26,7 @@ impl<'a> RothTracer<'a> {
             eval: Evaluator::new(),
             intersection_tests: 0,
             counts: EvalCounts::default(),
+            leaving: None,
         }
     }
 
@@ -48,14 +51,22 @@ impl Tracer for RothTracer<'_> {
         let root = self.scene.tree.root?;
         let prims = &self.scene.primitives;
         let tests = &mut self.intersection_tests;
+        let leaving = self.leaving;
         let spans = self
             .eval
             .evaluate(&self.scene.tree, root, ray, true, &mut self.counts, |p| {
+                if Some(p) == leaving {
+                    return PrimHits::Miss;
+                }
                 *tests += 1;
                 let h: PrimHits = prims[p.index()].intersect(ray);
                 h
             });
         spans.first_between(t_min, t_max).map(Hit::from)
+    }
+
+    fn leaving(&mut self, prim: Option<PrimId>) {
+        self.leaving = prim;
     }
 
     fn counters(&self) -> crate::render::TraceCounters {

@@ -14,7 +14,7 @@ pub mod traverse;
 use std::collections::HashMap;
 use std::time::Instant;
 
-use crate::csg::{CsgNode, CsgTree, NodeId, Op, Primitive};
+use crate::csg::{CsgNode, CsgTree, NodeId, Op, PrimId, Primitive};
 use crate::geom::Aabb;
 use crate::scene::Scene;
 use crate::trace::CameraFrame;
@@ -255,12 +255,34 @@ pub struct CellStructure {
     /// not cross that one is kept (`CellTracer::walk`); None when leaving
     /// no primitive out shrinks the scene box enough.
     pub clip: Option<Box<WideClip>>,
+    /// In a node's share, the whole scene's index of each primitive its
+    /// scene holds (ascending: a share keeps the whole scene's order);
+    /// empty for the whole structure, whose indices are the scene's.
+    pub primitive_ids: Vec<u32>,
     pub stats: BuildStats,
 }
 
 impl CellStructure {
     pub fn region(&self, r: Region) -> &RegionCells {
         &self.regions[r as usize]
+    }
+
+    /// The whole scene's index of primitive `p` of this structure's scene.
+    pub fn global_primitive(&self, p: PrimId) -> PrimId {
+        match self.primitive_ids.get(p.index()) {
+            Some(&g) => PrimId(g),
+            None => p,
+        }
+    }
+
+    /// This structure's index of the whole scene's primitive `g`, if its
+    /// scene holds it.
+    pub fn local_primitive(&self, g: PrimId) -> Option<PrimId> {
+        if self.primitive_ids.is_empty() {
+            return Some(g);
+        }
+        let k = self.primitive_ids.binary_search(&g.0).ok()?;
+        Some(PrimId(k as u32))
     }
 
     /// Builds the subdivision (sections 3-6) of `scene` for its camera.
@@ -425,6 +447,7 @@ impl CellStructure {
             origin_count: tree.nodes.len(),
             shadows: ShadowFacts::of(scene, &minimal, !opts.no_shadow_cache),
             clip: WideClip::of(scene, &prim_box, &scene_box),
+            primitive_ids: Vec::new(),
             leaf_span,
             subtree_leaves,
             scene_box,
@@ -481,7 +504,7 @@ impl CellStructure {
     /// their pointers and primitive lists, BSP nodes and subtree arena.
     pub fn bytes(&self) -> usize {
         use std::mem::size_of;
-        let mut b = size_of::<Self>() + self.shadows.bytes();
+        let mut b = size_of::<Self>() + self.shadows.bytes() + self.primitive_ids.len() * 4;
         if let Some(c) = &self.clip {
             b += size_of::<WideClip>() + c.prim.heap_bytes();
         }
@@ -529,6 +552,9 @@ pub struct WideClip {
     /// renumbering), or `NOT_HELD` where the share holds no cell of it:
     /// the clip's test fills its mailbox, which the walk then finds.
     pub id: u32,
+    /// The primitive's index in the whole scene, to know it in a ray's
+    /// `RayJob::leaving` on any node.
+    pub global: PrimId,
     /// A box around the other primitives' minimal boxes, inflated as the
     /// scene box is.
     pub rest: Aabb,
@@ -583,6 +609,7 @@ impl WideClip {
                 prim: scene.primitives[i].clone(),
                 cull: scene.primitives[i].bounds.inflated(1e-9),
                 id: i as u32,
+                global: PrimId(i as u32),
                 rest: rest.inflated(1e-9),
             })
         })

@@ -168,6 +168,7 @@ impl CellStructure {
                     ..(**c).clone()
                 })
             }),
+            primitive_ids: prims.keys().copied().collect(),
             stats: self.stats.clone(),
         };
         let local = Scene {
@@ -434,5 +435,37 @@ mod tests {
             shared > 0,
             "the test scene has no subtree serving two remote cells"
         );
+    }
+
+    /// A share knows each primitive it holds by the whole scene's index
+    /// (`RayJob::leaving` travels so), and the whole structure's indices
+    /// are the scene's.
+    #[test]
+    fn a_share_maps_its_primitives_to_the_whole_scene_and_back() {
+        let model = crate::r#gen::sphereflake::sphereflake(2);
+        let scene = crate::scene::load::compile_model(&model, std::path::Path::new("flake"))
+            .expect("the sphereflake compiles")
+            .0;
+        let cs = CellStructure::build(&scene, 64, 64, Default::default());
+        let n = scene.primitives.len() as u32;
+        for g in [0, 1, n - 1] {
+            assert_eq!(cs.local_primitive(PrimId(g)), Some(PrimId(g)));
+            assert_eq!(cs.global_primitive(PrimId(g)), PrimId(g));
+        }
+        let (share, local) = cs.restrict(&scene, &|_, s| s % 2 == 1);
+        let held = local.primitives.len();
+        assert!(held > 0 && held < scene.primitives.len(), "{held} held");
+        let mut found = 0;
+        for g in 0..n {
+            match share.local_primitive(PrimId(g)) {
+                Some(p) => {
+                    found += 1;
+                    assert_eq!(share.global_primitive(p), PrimId(g));
+                    assert_eq!(local.primitives[p.index()], scene.primitives[g as usize]);
+                }
+                None => assert!(!share.primitive_ids.contains(&g)),
+            }
+        }
+        assert_eq!(found, held);
     }
 }

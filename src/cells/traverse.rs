@@ -608,7 +608,9 @@ pub struct CellTracer<'a> {
     op_culled: Vec<bool>,
     /// Unique number of the current ray (mailbox key).
     ray_id: u64,
-    last_ray: Option<Ray>,
+    /// The last ray walked, with the primitive it leaves (`RayJob::leaving`,
+    /// whole-scene index): the same again keeps its mailboxes.
+    last_ray: Option<(Ray, Option<PrimId>)>,
     slab: SlabRay,
     /// Per region, the super cell where the last walk there started or
     /// found its hit: where the next ray most likely starts (the next
@@ -649,6 +651,10 @@ pub struct CellTracer<'a> {
     /// of the machine keeps its own cache), with `blockers` holding one
     /// cache per node.
     cache_node: usize,
+    /// The primitive the current job's ray leaves (`Tracer::leaving`): its
+    /// whole-scene index, and this structure's, if it holds it.
+    leaving: Option<PrimId>,
+    leaving_here: Option<PrimId>,
 }
 
 /// Lights up to which `CellTracer` keeps a shadow cache: finding a shadow
@@ -684,6 +690,8 @@ impl<'a> CellTracer<'a> {
                 Vec::new()
             },
             cache_node: 0,
+            leaving: None,
+            leaving_here: None,
         }
     }
 
@@ -1182,6 +1190,9 @@ impl CellTracer<'_> {
     fn cached_blocker(&mut self, ray: &Ray, t_min: f64, t_max: f64) -> Option<Hit> {
         let lights = self.scene.lights.len();
         let p = (*self.blockers.get(self.cache_node * lights + self.light)?)?;
+        if self.leaving_here == Some(PrimId(p)) {
+            return None;
+        }
         self.counters.intersection_tests += 1;
         let hits = self.scene.primitives[p as usize].intersect(ray);
         passes_through(&hits, PrimId(p), t_min, t_max)
@@ -1196,10 +1207,10 @@ impl CellTracer<'_> {
         // A new ray number unless this is the same ray again (shadow rays
         // ask repeatedly, past each surface they cross; a mailbox keyed by
         // an equal ray holds that ray's answers, so reuse is exact).
-        if self.last_ray != Some(*ray) {
-            self.ray_id += 1;
-            self.last_ray = Some(*ray);
+        if self.last_ray != Some((*ray, self.leaving)) {
+            self.last_ray = Some((*ray, self.leaving));
             self.slab = SlabRay::new(ray);
+            self.next_ray_id();
         }
         // Section 3: the cells partition the space bounding the scene, and
         // nothing lies outside it. The ray is followed only over its part
@@ -1384,6 +1395,8 @@ impl CellTracer<'_> {
         };
         let (clipped, tested) = match from {
             Some(p) => (p.clipped, false),
+            // The ray leaves it: crosses none of its boundaries.
+            None if self.leaving == Some(c.global) => (true, false),
             // A ray whose range misses the primitive's (inflated) box
             // crosses none of its boundaries there, and needs no test:
             // most shadow and reflected rays above a ground.
@@ -1541,7 +1554,7 @@ impl CellTracer<'_> {
             match *on {
                 Some(o) if o.node != node => {
                     if self.meets_remote(skeleton.region(region), k, ray, t_in, t_end) {
-                        self.ray_id += 1;
+                        self.next_ray_id();
                         self.moves += 1;
                         *on = Some(here);
                     } else {
@@ -1582,6 +1595,21 @@ impl CellTracer<'_> {
     }
 }
 
+impl CellTracer<'_> {
+    /// A new ray number (a new key for every mailbox, section 8), and the
+    /// mailbox of the primitive the ray leaves filled at once: met, and
+    /// crossed nowhere (`RayJob::leaving`), so that no cell tests it.
+    fn next_ray_id(&mut self) {
+        self.ray_id += 1;
+        if let Some(m) = self
+            .leaving_here
+            .and_then(|p| self.mailboxes.get_mut(p.index()))
+        {
+            *m = Mailbox::missed(self.ray_id);
+        }
+    }
+}
+
 impl Tracer for CellTracer<'_> {
     fn nearest(&mut self, ray: &Ray, t_min: f64, t_max: f64) -> Option<Hit> {
         match self.walk(ray, t_min, t_max, None) {
@@ -1601,5 +1629,10 @@ impl Tracer for CellTracer<'_> {
 
     fn counters(&self) -> TraceCounters {
         self.counters
+    }
+
+    fn leaving(&mut self, prim: Option<PrimId>) {
+        self.leaving = prim;
+        self.leaving_here = prim.and_then(|p| self.cs.local_primitive(p));
     }
 }

@@ -145,6 +145,30 @@ impl Primitive {
         }
     }
 
+    /// Whether a ray that starts on this primitive's surface and moves off
+    /// it, to the side its normal points to (`outward`) or to the other,
+    /// can never meet it again, so that the ray's queries may leave it out
+    /// (`RayJob::leaving`).
+    ///
+    /// Why: the ray starts a little off the surface on the side it moves
+    /// to (`optics::offset_origin`), so it is off the plane across the
+    /// normal at its start, on that side, for every `t > 0` (a shadow ray
+    /// ends at its light, on that side too). A planar primitive lies in
+    /// that plane: either side will do. Every other primitive is convex
+    /// or lies on the boundary of its convex hull (an open cylinder or
+    /// cone), so the plane across its outward normal leaves it wholly on
+    /// the inner side: only a ray leaving outward is sure to miss it. All
+    /// of this holds under an affine transform.
+    pub fn left_behind(&self, outward: bool) -> bool {
+        match &self.shape {
+            Shape::Triangle { .. } | Shape::Polygon(_) => true,
+            Shape::Sphere { .. }
+            | Shape::Box { .. }
+            | Shape::Cylinder { .. }
+            | Shape::Cone { .. } => outward,
+        }
+    }
+
     /// The crossings of the (world) ray with this primitive, `t` unclipped.
     /// A transformed primitive is intersected with the ray mapped into its
     /// object space; `t` is the same in both spaces because the direction is

@@ -1527,3 +1527,99 @@ fn surely_behind_never_hides_a_crossing() {
     // shortcut is worth its place.
     assert!(behind * 2 > leaving, "{behind} of {leaving} leaving rays");
 }
+
+// ------------------------------------------------ rays leaving a surface
+
+/// `Primitive::left_behind`: a ray that starts on a primitive's surface,
+/// offset and moving to the side the rule allows (outward for the convex
+/// shapes and the open tubes, either side for planar ones), finds no
+/// crossing with it ahead, whatever the primitive, its transform and the
+/// ray's direction; and only planar primitives allow the inner side.
+#[test]
+fn rays_leaving_a_surface_to_the_allowed_side_never_meet_it_again() {
+    let m = Affine::from_srt(v(2.0, 0.5, 1.0), v(20.0, 35.0, -10.0), v(1.0, -2.0, 0.5));
+    let shapes = [
+        Shape::Sphere {
+            center: v(0.1, 0.2, 0.3),
+            radius: 1.3,
+        },
+        Shape::Box {
+            min: v(-1.0, -0.5, -2.0),
+            max: v(1.0, 0.5, 0.0),
+        },
+        Shape::Cylinder {
+            base: v(0.0, 0.0, -1.0),
+            top: v(0.5, 0.0, 1.0),
+            radius: 0.7,
+            capped: true,
+        },
+        Shape::Cylinder {
+            base: v(0.0, 0.0, -1.0),
+            top: v(0.0, 0.5, 1.0),
+            radius: 0.7,
+            capped: false,
+        },
+        Shape::Cone {
+            base: v(0.0, 0.0, -1.0),
+            base_radius: 1.0,
+            top: v(0.0, 0.0, 1.0),
+            top_radius: 0.0,
+            capped: true,
+        },
+        Shape::Cone {
+            base: v(0.0, 0.0, -1.0),
+            base_radius: 1.0,
+            top: v(0.2, 0.0, 1.0),
+            top_radius: 0.4,
+            capped: false,
+        },
+        Shape::Triangle {
+            a: v(-1.0, -1.0, 0.2),
+            b: v(1.5, -0.5, 0.0),
+            c: v(0.0, 1.2, -0.3),
+        },
+    ];
+    let mut rng = Rng(0x5EED_1EAF);
+    let (mut spawned, mut surfaces) = (0usize, 0usize);
+    for shape in shapes {
+        let planar = matches!(shape, Shape::Triangle { .. });
+        for p in [prim(shape.clone()), placed(shape, &m)] {
+            assert!(p.left_behind(true));
+            assert_eq!(p.left_behind(false), planar, "{p:?}");
+            let centre = (p.bounds.min + p.bounds.max) * 0.5;
+            let size = (p.bounds.max - p.bounds.min).max_element();
+            for _ in 0..60 {
+                let from = centre + rng.vec(-1.0, 1.0).normalize_or(Vec3::X) * (4.0 * size);
+                let ray = Ray::new(from, centre + rng.vec(-0.3, 0.3) * size - from);
+                for c in crossings(&p.intersect(&ray)) {
+                    surfaces += 1;
+                    let at = ray.at(c.t);
+                    let n = p.normal(&ray, c.t, c.part);
+                    for side in [n, -n] {
+                        if !p.left_behind(side == n) {
+                            continue;
+                        }
+                        let o = crate::trace::offset_origin(&ray, c.t, at, side, size);
+                        for _ in 0..40 {
+                            let mut d = rng.vec(-1.0, 1.0).normalize_or(side);
+                            if d.dot(side) < 0.0 {
+                                d = -d;
+                            }
+                            spawned += 1;
+                            let ahead = crossings(&hits(&p, o, d));
+                            assert!(
+                                ahead.iter().all(|x| x.t <= 0.0),
+                                "{p:?}: from {o} along {d} ({} off the normal) {ahead:?}",
+                                d.dot(side)
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+    assert!(
+        surfaces > 500 && spawned > 20_000,
+        "{surfaces} surfaces, {spawned} rays"
+    );
+}

@@ -37,6 +37,7 @@ use super::codec::{decode, encode};
 use super::host::DEFAULT_CAPACITY;
 use super::topology::Topology;
 use super::transport::{Closed, Link, NodeLinks, channels};
+use crate::csg::PrimId;
 use crate::geom::{Ray, Vec3};
 use crate::trace::{RayJob, RayKind};
 
@@ -238,6 +239,7 @@ fn ray_job(i: usize) -> RayJob {
         depth: 2,
         weight: [0.5, 0.25, 0.125],
         t_max: f64::INFINITY,
+        leaving: Some(PrimId(i as u32)),
     }
 }
 

@@ -22,6 +22,7 @@ use serde::{Deserialize, Serialize};
 use super::message::{Active, Finished, Part, Path, Routed};
 use crate::cells::traverse::RegionRay;
 use crate::cells::{CellStructure, Region, WalkPoint};
+use crate::csg::PrimId;
 use crate::geom::{Ray, Vec3};
 use crate::scene::Light;
 use crate::trace::{RayJob, RayKind};
@@ -294,6 +295,7 @@ enum WireJob {
         origin: [f64; 3],
         depth: u8,
         weight: [f32; 3],
+        leaving: Option<PrimId>,
     },
     /// Any other ray of the path's pixel; `t_max` None for infinity.
     Ray {
@@ -303,6 +305,7 @@ enum WireJob {
         depth: u8,
         weight: [f32; 3],
         t_max: Option<f64>,
+        leaving: Option<PrimId>,
     },
     /// A ray of another pixel (the shader makes none; kept so that packing
     /// never loses anything).
@@ -337,6 +340,7 @@ fn pack_job(j: &RayJob, pixel: u64, ctx: &PathContext) -> WireJob {
             origin,
             depth: j.depth,
             weight: j.weight,
+            leaving: j.leaving,
         };
     }
     WireJob::Ray {
@@ -346,6 +350,7 @@ fn pack_job(j: &RayJob, pixel: u64, ctx: &PathContext) -> WireJob {
         depth: j.depth,
         weight: j.weight,
         t_max: (j.t_max != f64::INFINITY).then_some(j.t_max),
+        leaving: j.leaving,
     }
 }
 
@@ -356,6 +361,7 @@ fn unpack_job(w: WireJob, pixel: u32, ctx: &PathContext) -> Result<RayJob, Strin
             origin,
             depth,
             weight,
+            leaving,
         } => {
             let l = ctx
                 .lights
@@ -369,6 +375,7 @@ fn unpack_job(w: WireJob, pixel: u32, ctx: &PathContext) -> Result<RayJob, Strin
                 depth,
                 weight,
                 t_max: 1.0,
+                leaving,
             }
         }
         WireJob::Ray {
@@ -378,6 +385,7 @@ fn unpack_job(w: WireJob, pixel: u32, ctx: &PathContext) -> Result<RayJob, Strin
             depth,
             weight,
             t_max,
+            leaving,
         } => RayJob {
             ray: Ray::new(Vec3::from_array(origin), Vec3::from_array(dir)),
             kind: *RayKind::ALL
@@ -387,6 +395,7 @@ fn unpack_job(w: WireJob, pixel: u32, ctx: &PathContext) -> Result<RayJob, Strin
             depth,
             weight,
             t_max: t_max.unwrap_or(f64::INFINITY),
+            leaving,
         },
         WireJob::Whole(j) => j,
     })
@@ -759,6 +768,8 @@ mod tests {
             depth: 2,
             weight: [0.5, -0.0, f32::MIN_POSITIVE],
             t_max,
+            // None, and a whole-scene index past what one byte holds.
+            leaving: (t_max == 1.0).then_some(PrimId(70_000)),
         };
         let toward = |i: usize| scene.lights[i].position - o;
         let back = cells.region(Region::Back);

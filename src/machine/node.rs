@@ -37,7 +37,7 @@ use super::transport::{Link, NodeLinks};
 use crate::cells::{CellStructure, CellTracer, Region, Walk};
 use crate::render::sample_offset_from;
 use crate::scene::Scene;
-use crate::trace::{CameraFrame, Film, RayJob, RayKind, Shader};
+use crate::trace::{CameraFrame, Film, RayJob, RayKind, Shader, Tracer};
 
 /// Paths per batch message on a link.
 const BATCH: usize = 64;
@@ -893,6 +893,7 @@ impl<'a> Node<'a> {
             self.report.rays_processed += 1;
             let shadow = a.job.kind == RayKind::Shadow;
             let from = a.at.take();
+            self.tracer.leaving(a.job.leaving);
             let walk = if shadow {
                 self.tracer
                     .walk_shadow(&a.job.ray, a.t_min, a.job.t_max, from)
@@ -967,6 +968,12 @@ impl<'a> Node<'a> {
                     // order. The image does not depend on the order:
                     // contributions sum in fixed point.
                     stack[base..].sort_by_key(|j| j.kind == RayKind::Shadow);
+                    // The primitive each leaves, by its index in the whole
+                    // scene, which every node knows.
+                    let cells = &self.share.cells;
+                    for j in &mut stack[base..] {
+                        j.leaving = j.leaving.map(|p| cells.global_primitive(p));
+                    }
                     let waiting = stack.len() as u64;
                     self.report.max_stack_rays = self.report.max_stack_rays.max(waiting);
                     // The stack may have grown: hold the difference.

@@ -69,6 +69,13 @@ pub struct RayJob {
     /// Hits count only for `t` below this: 1.0 for shadow rays (the light is
     /// at `origin + dir`), infinity otherwise.
     pub t_max: f64,
+    /// The primitive (its index in the whole scene) whose surface the ray
+    /// starts on and moves off, where it can never meet it again
+    /// (`Primitive::left_behind`): its queries leave it out, which spares
+    /// most secondary rays a test, and makes sure no rounding lets a ray
+    /// find the surface it leaves. None for primary rays and where the
+    /// primitive may be met again.
+    pub leaving: Option<PrimId>,
 }
 
 impl RayJob {
@@ -129,6 +136,12 @@ pub trait Tracer {
     fn counters(&self) -> crate::render::TraceCounters {
         Default::default()
     }
+
+    /// The primitive the rays of the queries that follow start on and
+    /// move off (`RayJob::leaving`, a whole-scene index), set before each
+    /// job's queries: every tracer must leave it out, so that all give the
+    /// same answers.
+    fn leaving(&mut self, prim: Option<PrimId>);
 }
 
 /// Per-kind ray counters.
@@ -235,6 +248,10 @@ impl<'a> Shader<'a> {
         // The normal on the side the ray arrives from.
         let nf = if entering { n } else { -n };
         let extent = (prim.bounds.max - prim.bounds.min).max_element();
+        // Whether `nf` is the primitive's own outward normal (it is the
+        // solid's, which is the other way round on a subtracted surface).
+        let outward = entering != hit.flip;
+        let leaving = |outward| prim.left_behind(outward).then_some(hit.prim);
 
         let local = w * m.ambient * m.color * scene.ambient;
         for light in &scene.lights {
@@ -263,6 +280,7 @@ impl<'a> Shader<'a> {
                 depth: job.depth,
                 weight: to_weight(c),
                 t_max: 1.0,
+                leaving: leaving(outward),
             });
         }
 
@@ -282,6 +300,8 @@ impl<'a> Shader<'a> {
                         depth: job.depth + 1,
                         weight: to_weight(w * m.transmit),
                         t_max: f64::INFINITY,
+                        // Off the other side of the surface.
+                        leaving: leaving(!outward),
                     });
                 }
                 Refraction::Transmitted(_) => {}
@@ -298,6 +318,7 @@ impl<'a> Shader<'a> {
                 depth: job.depth + 1,
                 weight: to_weight(w * reflect_share),
                 t_max: f64::INFINITY,
+                leaving: leaving(outward),
             });
         }
         local
@@ -318,6 +339,7 @@ impl<'a> Shader<'a> {
         stack.push(first);
         while let Some(mut job) = stack.pop() {
             counts.add(job.kind);
+            tracer.leaving(job.leaving);
             if job.kind == RayKind::Shadow {
                 let mut t = 0.0;
                 let delivered = loop {
@@ -408,6 +430,7 @@ impl CameraFrame {
             depth: 0,
             weight: [weight as f32; 3],
             t_max: f64::INFINITY,
+            leaving: None,
         }
     }
 }

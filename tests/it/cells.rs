@@ -284,6 +284,11 @@ struct Compare<'a> {
 }
 
 impl Tracer for Compare<'_> {
+    fn leaving(&mut self, prim: Option<PrimId>) {
+        self.roth.leaving(prim);
+        self.cells.leaving(prim);
+    }
+
     fn nearest(&mut self, ray: &Ray, t_min: f64, t_max: f64) -> Option<Hit> {
         let a = self.roth.nearest(ray, t_min, t_max);
         // A failed debug assertion in the walk is a difference too.
@@ -528,6 +533,10 @@ fn random_scenes_on_a_wide_ground_render_identically_with_the_clip() {
 struct NoShortcuts<'a>(CellTracer<'a>);
 
 impl Tracer for NoShortcuts<'_> {
+    fn leaving(&mut self, prim: Option<PrimId>) {
+        self.0.leaving(prim);
+    }
+
     fn nearest(&mut self, ray: &Ray, t_min: f64, t_max: f64) -> Option<Hit> {
         self.0.nearest(ray, t_min, t_max)
     }

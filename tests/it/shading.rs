@@ -400,6 +400,41 @@ fn eye_inside_a_difference_exits_at_the_cut() {
 
 /// The small scenes, both accelerators: every image finite, cells equal to
 /// the brute force bit for bit.
+/// Secondary rays leave out the primitive they start on and move off
+/// (`RayJob::leaving`): around a lone mirror ball, every shadow and
+/// reflected ray starts on the ball, so both accelerators test the ball
+/// for the primary rays only (those meeting its box). Without that, each
+/// secondary ray would test it too: its start lies in the ball's box.
+/// (Rendered at `both`'s 64x48.)
+#[test]
+fn secondary_rays_do_not_test_the_ball_they_leave() {
+    let scene = util::scene(
+        r#"(
+      camera: (eye: (0, -5, 1), look_at: (0, 0, 0), fov_y: 40, width: 48, height: 36),
+      lights: [(position: (3, -4, 5)), (position: (-4, -1, 2))],
+      materials: { "mirror": (color: (0.8, 0.7, 0.6), specular: 0.5, shininess: 40, reflect: 0.6) },
+      objects: [Sphere(center: (0, 0, 0), radius: 1, material: "mirror")],
+    )"#,
+    );
+    for stats in both(&scene) {
+        let hits = count(&stats, RayKind::Reflected);
+        let shadows = count(&stats, RayKind::Shadow);
+        let tests = stats.counters.intersection_tests;
+        assert!(
+            hits > 200 && shadows > hits,
+            "{hits} hits, {shadows} shadow rays"
+        );
+        // The primary rays that meet the ball's box but not the ball are
+        // tested too (the box's outline is under twice the ball's here).
+        // Were each secondary ray to test the ball, there would be
+        // `hits + shadows` tests more.
+        assert!(
+            tests < hits * 2 + shadows / 2,
+            "{tests} tests for {hits} primary hits and {shadows} shadow rays"
+        );
+    }
+}
+
 #[test]
 fn small_scenes_render_finite_and_cells_match_roth() {
     for name in [
