@@ -347,6 +347,14 @@ impl Hull {
 mod tests {
     use super::*;
 
+    /// The sphereflake of level 2 (92 primitives).
+    fn flake2() -> Scene {
+        let model = crate::r#gen::sphereflake::sphereflake(2);
+        crate::scene::load::compile_model(&model, std::path::Path::new("flake"))
+            .expect("the sphereflake compiles")
+            .0
+    }
+
     fn contains(outer: &Aabb, inner: &Aabb) -> bool {
         (0..3).all(|i| outer.min[i] <= inner.min[i] && outer.max[i] >= inner.max[i])
     }
@@ -399,10 +407,7 @@ mod tests {
     /// hull the whole structure has for that cell.
     #[test]
     fn a_share_keeps_one_hull_per_remote_subtree() {
-        let model = crate::r#gen::sphereflake::sphereflake(2);
-        let scene = crate::scene::load::compile_model(&model, std::path::Path::new("flake"))
-            .expect("the sphereflake compiles")
-            .0;
+        let scene = flake2();
         let options = crate::cells::CellOptions {
             min_super_cells: 32,
             ..Default::default()
@@ -442,10 +447,7 @@ mod tests {
     /// are the scene's.
     #[test]
     fn a_share_maps_its_primitives_to_the_whole_scene_and_back() {
-        let model = crate::r#gen::sphereflake::sphereflake(2);
-        let scene = crate::scene::load::compile_model(&model, std::path::Path::new("flake"))
-            .expect("the sphereflake compiles")
-            .0;
+        let scene = flake2();
         let cs = CellStructure::build(&scene, 64, 64, Default::default());
         let n = scene.primitives.len() as u32;
         for g in [0, 1, n - 1] {
