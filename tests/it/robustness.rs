@@ -854,6 +854,33 @@ fn bundled_scenes_with_extreme_numbers_load_with_an_error_or_render_as_roth_does
 // ---------------------------------------------------------------------------
 // ROBUSTNESS.md 24: spawned rays never hit the surface they leave.
 
+/// Case 24's scene: the one primitive `shape` of size about `r`, scaled,
+/// rotated and translated, in glass or not, seen from 100 r away.
+fn placed_alone(
+    shape: &str,
+    r: f64,
+    (scale, rotate, translate): (Vec3, Vec3, Vec3),
+    glass: bool,
+) -> Scene {
+    let (materials, material) = if glass {
+        (
+            "materials: { \"glass\": (transmit: 1, ior: 1.5) },",
+            ", material: \"glass\"",
+        )
+    } else {
+        ("", "")
+    };
+    util::scene(&format!(
+        "(camera: (eye: (0, 0, {:?}), look_at: (0, 0, 0), up: (0, 1, 0), fov_y: 40, width: 8, height: 8),
+          {materials}
+          objects: [Transform(scale: {}, rotate: {}, translate: {}, child: {shape}{material})])",
+        100.0 * r,
+        v(scale),
+        v(rotate),
+        v(translate)
+    ))
+}
+
 /// pbrt's re-intersection test: spheres and cylinders of radius
 /// 10^U(−6, 6), under random rotations, scales and translations; at a hit,
 /// 1000 rays leave from the offset origin on the outer side and must not
@@ -887,15 +914,7 @@ fn case_24_spawned_rays_never_hit_the_surface_they_leave() {
                 v(Vec3::new(0.0, 0.0, r * 1.5))
             )
         };
-        let scene = util::scene(&format!(
-            "(camera: (eye: (0, 0, {:?}), look_at: (0, 0, 0), up: (0, 1, 0), fov_y: 40, width: 8, height: 8),
-              materials: {{ \"glass\": (transmit: 1, ior: 1.5) }},
-              objects: [Transform(scale: {}, rotate: {}, translate: {}, child: {shape}, material: \"glass\")])",
-            100.0 * r,
-            v(scale),
-            v(rotate),
-            v(translate)
-        ));
+        let scene = placed_alone(&shape, r, (scale, rotate, translate), true);
         let prim = &scene.primitives[0];
         let mut roth = RothTracer::new(&scene);
         let centre = (prim.bounds.min + prim.bounds.max) * 0.5;
@@ -965,6 +984,132 @@ fn case_24_spawned_rays_never_hit_the_surface_they_leave() {
     );
 }
 
+/// Spawns `per_side` rays in random directions from the hit at `t` of
+/// `ray` (normal `n`), offset to each side of the surface as the shader
+/// offsets them, the primitive not left out; returns how many it spawned
+/// and how many met a surface within 1e-9 of `size` of their start.
+fn spawn_around(
+    roth: &mut RothTracer,
+    ray: &Ray,
+    t: f64,
+    n: Vec3,
+    size: f64,
+    per_side: usize,
+    rng: &mut Rng,
+) -> (usize, usize) {
+    let (mut spawned, mut self_hits) = (0, 0);
+    roth.leaving(None);
+    for side in [n, -n] {
+        let o = offset_origin(ray, t, ray.at(t), side, size);
+        for _ in 0..per_side {
+            let mut d = rng.direction();
+            if d.dot(side) < 0.0 {
+                d = -d;
+            }
+            spawned += 1;
+            if let Some(h) = roth.nearest(&Ray::new(o, d), 0.0, f64::INFINITY)
+                && h.t * d.length() < 1e-9 * size
+            {
+                self_hits += 1;
+                eprintln!("self-hit {h:?} from {o} along {d}, {side} off the surface");
+            }
+        }
+    }
+    (spawned, self_hits)
+}
+
+/// Case 24 for the other shapes, at the same extreme scales: boxes, fat,
+/// thin and blunt cones, thin cylinders and triangles, r = 10^U(−6,6),
+/// random rotations, scales (a third non-uniform) and translations. Rays
+/// spawned from a hit, to either side of the surface, the primitive not
+/// left out, never meet it within 1e-9 of its size.
+#[test]
+fn case_24_spawned_rays_miss_the_surface_they_leave_on_every_shape() {
+    let mut rng = Rng(0x1234_5678_9ABC_DEF1);
+    for kind in 0..5 {
+        let (mut self_hits, mut spawned) = (0usize, 0usize);
+        for case in 0..60 {
+            let r = 10f64.powf(rng.range(-6.0, 6.0));
+            let scale = if case % 3 == 2 {
+                rng.vec(0.5, 2.0)
+            } else {
+                Vec3::splat(rng.range(0.5, 2.0))
+            };
+            let rotate = rng.vec(0.0, 360.0);
+            let translate = rng.vec(-10.0, 10.0) * if case % 5 == 4 { 100.0 } else { r };
+            let z = |h: f64| v(Vec3::new(0.0, 0.0, h * r));
+            // The shape, and how far off its middle rays are aimed.
+            let (shape, aim) = match kind {
+                0 => (
+                    format!(
+                        "Box(min: {}, max: {})",
+                        v(Vec3::new(-r, -0.5 * r, -2.0 * r)),
+                        v(Vec3::new(r, 0.5 * r, 0.3 * r))
+                    ),
+                    0.2,
+                ),
+                1 => (
+                    format!(
+                        "Cone(base: {}, base_radius: {r:?}, top: {}, top_radius: 0)",
+                        z(-1.0),
+                        z(3.0)
+                    ),
+                    0.2,
+                ),
+                2 => (
+                    format!(
+                        "Cone(base: {}, base_radius: {:?}, top: {}, top_radius: {:?})",
+                        z(-1.0),
+                        0.05 * r,
+                        z(8.0),
+                        0.01 * r
+                    ),
+                    0.005,
+                ),
+                3 => (
+                    format!(
+                        "Cylinder(base: {}, top: {}, radius: {:?})",
+                        z(-1.0),
+                        z(10.0),
+                        0.05 * r
+                    ),
+                    0.005,
+                ),
+                _ => (
+                    format!(
+                        "Triangle(a: {}, b: {}, c: {})",
+                        v(Vec3::new(-r, -r, 0.0)),
+                        v(Vec3::new(r, -0.3 * r, 0.1 * r)),
+                        v(Vec3::new(0.0, r, -0.2 * r))
+                    ),
+                    0.2,
+                ),
+            };
+            let scene = placed_alone(&shape, r, (scale, rotate, translate), false);
+            let prim = &scene.primitives[0];
+            let mut roth = RothTracer::new(&scene);
+            let centre = (prim.bounds.min + prim.bounds.max) * 0.5;
+            let size = (prim.bounds.max - prim.bounds.min).max_element();
+            for _ in 0..20 {
+                let from = centre + rng.direction() * (10.0 * size);
+                let to = centre + rng.vec(-aim, aim) * size;
+                let ray = Ray::new(from, to - from);
+                let Some(hit) = roth.nearest(&ray, 0.0, f64::INFINITY) else {
+                    continue;
+                };
+                let n = prim.normal(&ray, hit.t, hit.part);
+                let (made, met) = spawn_around(&mut roth, &ray, hit.t, n, size, 50, &mut rng);
+                (spawned, self_hits) = (spawned + made, self_hits + met);
+            }
+        }
+        assert!(spawned > 20_000, "shape {kind}: {spawned} rays spawned");
+        assert_eq!(
+            self_hits, 0,
+            "shape {kind}: {self_hits} of {spawned} self-hits"
+        );
+    }
+}
+
 /// Case 24 for thin cones, the jagged ball's spikes (a radius of a tenth of
 /// their length or less, seen from a few lengths away). Their crossings
 /// were once 5e-14 of `t` off (the discriminant's cancellation,
@@ -1018,24 +1163,9 @@ fn case_24_rays_leaving_a_thin_cone_never_meet_it_at_their_start() {
             // Rays spawned at the hit to either side, the spike not left
             // out: the first crossing ahead is the far side, never the
             // point they start at.
-            let p = job.ray.at(hit.t);
             let n = prim.normal(&job.ray, hit.t, hit.part);
-            for side in [n, -n] {
-                let o = offset_origin(&job.ray, hit.t, p, side, size);
-                for _ in 0..4 {
-                    let mut d = rng.direction();
-                    if d.dot(side) < 0.0 {
-                        d = -d;
-                    }
-                    spawned += 1;
-                    if let Some(h) = roth.nearest(&Ray::new(o, d), 0.0, f64::INFINITY)
-                        && h.t * d.length() < 1e-9 * size
-                    {
-                        self_hits += 1;
-                        eprintln!("self-hit {h:?} from {o} along {d}, {side} off the surface");
-                    }
-                }
-            }
+            let (made, met) = spawn_around(&mut roth, &job.ray, hit.t, n, size, 4, &mut rng);
+            (spawned, self_hits) = (spawned + made, self_hits + met);
             // The shader's shadow rays, the spike left out.
             let mut jobs = Vec::new();
             shader.shade(&job, &hit, &mut |j| jobs.push(j));
