@@ -1632,7 +1632,11 @@ impl Tracer for CellTracer<'_> {
     }
 
     fn leaving(&mut self, prim: Option<PrimId>) {
-        self.leaving = prim;
-        self.leaving_here = prim.and_then(|p| self.cs.local_primitive(p));
+        // A node asks again for every walk of a path's ray (a shadow ray
+        // past each surface it crosses): the share's lookup once.
+        if prim != self.leaving {
+            self.leaving = prim;
+            self.leaving_here = prim.and_then(|p| self.cs.local_primitive(p));
+        }
     }
 }

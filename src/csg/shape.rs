@@ -1005,7 +1005,7 @@ fn cone_hits(ray: &Ray, base: Vec3, rb: f64, top: Vec3, rt: f64, capped: bool) -
         if !(disc > 0.0) {
             return PrimHits::Miss;
         }
-        let (t0, t1) = cone_roots((f, d, a), (rb, k), (qa, qb, qc, disc));
+        let (t0, t1) = cone_roots((f, d, a, d_perp), (rb, k, m), (qa, qb, qc, disc));
         // In exact arithmetic the slab already excludes the mirror nappe;
         // this keeps rounding near a pointed end from admitting it.
         let mid = 0.5 * t0 + 0.5 * t1;
@@ -1018,7 +1018,7 @@ fn cone_hits(ray: &Ray, base: Vec3, rb: f64, top: Vec3, rt: f64, capped: bool) -
         // here, and its sign says which end lies in the real nappe.
         let disc = qb * qb - qa * qc;
         if disc > 0.0 {
-            let (t0, t1) = cone_roots((f, d, a), (rb, k), (qa, qb, qc, disc));
+            let (t0, t1) = cone_roots((f, d, a, d_perp), (rb, k, m), (qa, qb, qc, disc));
             if m > 0.0 {
                 (crossing(t1, SIDE), above)
             } else {
@@ -1048,14 +1048,12 @@ fn cone_hits(ray: &Ray, base: Vec3, rb: f64, top: Vec3, rt: f64, capped: bool) -
 /// tangent, where the two roots blur; or NaN) is not taken.
 #[inline]
 fn cone_roots(
-    (f, d, a): (Vec3, Vec3, Vec3),
-    (rb, k): (f64, f64),
+    (f, d, a, d_perp): (Vec3, Vec3, Vec3, Vec3),
+    (rb, k, m): (f64, f64, f64),
     (qa, qb, qc, disc): (f64, f64, f64, f64),
 ) -> (f64, f64) {
     let (t0, t1) = quadratic_roots(qa, qb, qc, disc);
     let room = 0.25 * (t1 - t0).abs();
-    let d_perp = d - a * d.dot(a);
-    let m = k * d.dot(a);
     let refine = |t: f64| {
         let f1 = f + d * t;
         let fa = f1.dot(a);
