@@ -541,6 +541,23 @@ fn unzigzag(v: u64) -> i64 {
     (v >> 1) as i64 ^ -((v & 1) as i64)
 }
 
+/// The most bytes of a finished record packed by `pack_done_into`: a
+/// flags byte and five numbers of up to 10 bytes.
+const MAX_DONE_RECORD: usize = 1 + 5 * 10;
+
+/// The most bytes a node holds per finished record, in its list of
+/// records (`Finished`) or encoded in a message to the host waiting for
+/// the host's link: the record itself, and, were it alone in its
+/// message, the frame's header (its length, up to 10 bytes), stamp, the
+/// message's tag (1), node (up to 3) and the records' length (up to 5).
+/// The host's memory plan sizes the records no credit covers by it
+/// (`host::Plan::local_credits`).
+pub const DONE_RECORD_BOUND: usize = {
+    let encoded = MAX_DONE_RECORD + 10 + STAMP + 1 + 3 + 5;
+    let decoded = std::mem::size_of::<Finished>();
+    if encoded > decoded { encoded } else { decoded }
+};
+
 /// The finished samples that node `node` sends, each record a flags byte
 /// and LEB128 numbers: its sample as the (zigzag) difference from the
 /// record before (a node finishes neighbouring pixels together), its
@@ -548,14 +565,12 @@ fn unzigzag(v: u64) -> i64 {
 /// fixed-point sums (zigzag). Into `w`, whose bytes are replaced: a node
 /// packs every batch into the same buffer.
 pub fn pack_done_into(node: u16, finished: &[Finished], w: &mut WireDone) {
-    // A record is at most a flags byte and five numbers of 10 bytes.
-    const MAX_RECORD: usize = 1 + 5 * 10;
     let out = &mut w.0;
     out.clear();
     out.reserve(finished.len() * 24);
     let mut prev = 0u64;
     for f in finished {
-        let mut rec = [0u8; MAX_RECORD];
+        let mut rec = [0u8; MAX_DONE_RECORD];
         let mut n = 1;
         let mut put = |v: u64| n += leb128(v, &mut rec[n..]);
         put(zigzag(f.sample.wrapping_sub(prev) as i64));

@@ -403,9 +403,9 @@ impl Plan {
         let path_bytes = path_bound(scene);
         let most = share_bytes.iter().copied().max().unwrap_or(0);
         // Every node may come to hold every path in flight (n windows),
-        // and as many finished samples of its own, credited at once but
-        // not yet handed to the host's link (`node::Node::credit_locally`;
-        // a finished sample is far smaller than a path's bound).
+        // and a window's room of finished records no credit covers, not
+        // yet handed to the host's link (`local_credits`; a finished
+        // record is far smaller than a path's bound).
         let room = topo.node_memory.saturating_sub(most);
         let window = (room / ((n as u64 + 1) * path_bytes)).min(MAX_WINDOW as u64) as u32;
         Plan {
@@ -425,14 +425,15 @@ impl Plan {
         }
     }
 
-    /// Finished records credited on their node that may wait for the host's
-    /// link at once: the plan keeps room for a window of finished samples
-    /// at a path's bound each (`new`), and a record takes far less (its
-    /// size in `done`, no more encoded).
+    /// Finished records that no credit covers and that may wait on their
+    /// node for the host's link at once: those of samples credited on their
+    /// node, and those of background samples, which take no credit. The
+    /// plan keeps room for a window of finished samples at a path's bound
+    /// each (`new`), and a record takes far less, listed or encoded
+    /// (`codec::DONE_RECORD_BOUND`).
     pub fn local_credits(&self) -> u32 {
-        let per = std::mem::size_of::<Finished>() as u64;
-        (u64::from(self.window) * self.path_bytes / per)
-            .clamp(u64::from(self.window), u64::from(u32::MAX)) as u32
+        let per = super::codec::DONE_RECORD_BOUND as u64;
+        (u64::from(self.window) * self.path_bytes / per).clamp(1, u64::from(u32::MAX)) as u32
     }
 
     /// Refuses, with the numbers, a plan where some node cannot hold its

@@ -84,9 +84,10 @@ pub struct Share {
     /// Primary paths the node may have unfinished at once (flow control:
     /// with every node's window, the paths in flight fit any node).
     pub window: u32,
-    /// Finished samples credited on this node whose records may wait for
-    /// the host's link at once (`node::Node::credit_locally`): as many as
-    /// fit the room the plan keeps for a window of paths.
+    /// Finished records no credit covers (of samples credited on this
+    /// node, `node::Node::credit_locally`, and of background samples) that
+    /// may wait for the host's link at once: as many as fit the room the
+    /// plan keeps for a window of paths.
     pub local_credits: u32,
     pub budget: u64,
     pub link: LinkModel,

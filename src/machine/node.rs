@@ -342,10 +342,11 @@ struct Node<'a> {
     /// The bytes of the last batch of finished records sent, kept to pack
     /// the next one in (`send_done`).
     done_wire: WireDone,
-    /// Samples credited here (`credit_locally`) whose finished record is
-    /// still in `done`, and those in the host link's waiting envelope.
-    credited_in_done: u32,
-    credited_waiting: u32,
+    /// Finished records no credit covers (`Share::local_credits`: samples
+    /// credited here, `credit_locally`, and background samples) still in
+    /// `done`, and those in the host link's waiting envelope.
+    uncovered_in_done: u32,
+    uncovered_waiting: u32,
     generated_reported: bool,
     stopping: bool,
     /// Bytes of rays held (queue, batches, encoded messages).
@@ -413,8 +414,8 @@ impl<'a> Node<'a> {
             carries: vec![false; d + 1],
             done: Vec::new(),
             done_wire: WireDone::default(),
-            credited_in_done: 0,
-            credited_waiting: 0,
+            uncovered_in_done: 0,
+            uncovered_waiting: 0,
             generated_reported: false,
             stopping: false,
             ray_bytes: 0,
@@ -486,7 +487,9 @@ impl<'a> Node<'a> {
             }
             self.announce(worked)?;
             self.flush(!worked)?;
-            if !worked && !self.stopping {
+            // Sending may have made room for background samples, which
+            // nothing would wake the node for.
+            if !worked && !self.stopping && !self.background_ready() {
                 let sending: Vec<Link> = (0..self.waiting.len())
                     .filter(|&i| !self.waiting[i].is_empty())
                     .map(|i| self.link_of(i))
@@ -788,10 +791,17 @@ impl<'a> Node<'a> {
         let queued_before_now = earliest.is_some_and(|t| t <= self.clock);
         if !queued_before_now {
             match self.primaries.peek(&self.share.cells, &self.cam) {
-                Some(background) if background || self.credits > 0 => {
+                Some(true) if self.record_room() => {
                     return self.start_primary().map(|()| true);
                 }
-                Some(_) => {
+                Some(false) if self.credits > 0 => {
+                    return self.start_primary().map(|()| true);
+                }
+                // A background sample waits for the host's link to take
+                // the records before it (`record_room`; the node sends them
+                // when it idles).
+                Some(true) => {}
+                Some(false) => {
                     // Only credit lets the node start a primary path: wait
                     // for it, unless a path arrives first.
                     if let Some(&(t, n)) = self
@@ -844,6 +854,7 @@ impl<'a> Node<'a> {
         self.report.rays_created[RayKind::Primary.index()] += 1;
         if background {
             self.report.rays_finished[RayKind::Primary.index()] += 1;
+            self.uncovered_in_done += 1;
             return self.finish_sample(Finished {
                 sample,
                 origin: self.id,
@@ -1031,12 +1042,26 @@ impl<'a> Node<'a> {
     /// host's plan keeps for a window of finished samples), beyond that
     /// the credit comes from the host as for any other.
     fn credit_locally(&mut self) -> bool {
-        if self.credited_in_done + self.credited_waiting >= self.share.local_credits {
+        if !self.record_room() {
             return false;
         }
-        self.credited_in_done += 1;
+        self.uncovered_in_done += 1;
         self.credits += 1;
         true
+    }
+
+    /// Whether one more finished record that no credit covers may wait
+    /// here for the host's link (`Share::local_credits`). A background
+    /// sample starts only then: it takes no credit, so without this bound
+    /// a node with large empty pixel areas and a busy host link would pile
+    /// up their records beyond its memory.
+    fn record_room(&self) -> bool {
+        self.uncovered_in_done + self.uncovered_waiting < self.share.local_credits
+    }
+
+    /// Whether the next sample is a background one that may start now.
+    fn background_ready(&mut self) -> bool {
+        self.record_room() && self.primaries.peek(&self.share.cells, &self.cam) == Some(true)
     }
 
     /// Queues a finished record for the host. A record the host answers
@@ -1051,6 +1076,7 @@ impl<'a> Node<'a> {
         if f.traced && !f.credited && self.done_urgent.is_none() {
             self.done_urgent = Some(self.clock);
         }
+        self.hold(size_of::<Finished>());
         self.done.push(f);
         if self.done.len() >= DONE_BATCH || self.done_due() {
             self.send_done()?;
@@ -1070,7 +1096,9 @@ impl<'a> Node<'a> {
             return Ok(());
         }
         self.done_urgent = None;
-        self.credited_waiting += std::mem::take(&mut self.credited_in_done);
+        self.uncovered_waiting += std::mem::take(&mut self.uncovered_in_done);
+        // Listed, then encoded (held by `enqueue`).
+        self.release(self.done.len() * size_of::<Finished>());
         // Packing is encoding (as in `seal`).
         let finished = self.excluding(|n| {
             let mut finished = std::mem::take(&mut n.done_wire);
@@ -1190,7 +1218,7 @@ impl<'a> Node<'a> {
                     self.release(n);
                     self.carries[i] = false;
                     if i == host {
-                        self.credited_waiting = 0;
+                        self.uncovered_waiting = 0;
                     }
                 }
                 Ok(Some(back)) => self.waiting[i] = back,

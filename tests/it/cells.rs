@@ -429,7 +429,10 @@ fn random_csg_scenes_render_identically_with_cells_and_roth() {
 /// A random scene of up to `max` primitives with 1 to 3 lights, half of
 /// them with mirrors and glass, trees 1 to 4 deep, the camera outside,
 /// inside or with geometry behind the eye, by the seed.
-fn lit_random_scene(seed: u64, max: usize) -> (usize, hypercast::scene::model::SceneFile) {
+pub(crate) fn lit_random_scene(
+    seed: u64,
+    max: usize,
+) -> (usize, hypercast::scene::model::SceneFile) {
     let opts = RandomCsgOptions {
         max_tree_depth: 1 + (seed % 4) as u32,
         mirrors_and_glass: seed % 2 == 1,
@@ -548,7 +551,7 @@ impl Tracer for NoShortcuts<'_> {
 
 /// The seeds of the random tests: `default`, or the range `a..b` given by
 /// `HYPERCAST_SEEDS` for longer hunts (stress counts scale by configuration).
-fn seeds(default: std::ops::Range<u64>) -> std::ops::Range<u64> {
+pub(crate) fn seeds(default: std::ops::Range<u64>) -> std::ops::Range<u64> {
     let Ok(v) = std::env::var("HYPERCAST_SEEDS") else {
         return default;
     };
