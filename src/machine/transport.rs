@@ -233,9 +233,17 @@ impl ChannelNode {
 }
 
 /// A node that stops (or fails) wakes the ends of its links, which then
-/// find them closed.
+/// find them closed. Its channel ends go first: a ring before they close
+/// could wake a waiter that looks, finds its link still open, and sleeps
+/// again with nobody left to wake it (seen: the host asleep in `recv`
+/// for 10 s after its last node had gone).
 impl Drop for ChannelNode {
     fn drop(&mut self) {
+        self.to.clear();
+        self.from.clear();
+        let (closed_to, closed_from) = bounded(0);
+        drop(std::mem::replace(&mut self.to_host, closed_to));
+        drop(std::mem::replace(&mut self.from_host, closed_from));
         for b in &self.neighbour_bells {
             b.ring();
         }
@@ -245,6 +253,9 @@ impl Drop for ChannelNode {
 
 impl Drop for ChannelHost {
     fn drop(&mut self) {
+        // The channels first, as for a node.
+        self.to.clear();
+        self.from.clear();
         for b in &self.node_bells {
             b.ring();
         }
