@@ -112,6 +112,22 @@ pub fn append_stamped<T: Serialize>(
     })
 }
 
+/// Gives the frame that starts at byte `frame` of `envelope` (appended by
+/// `append_stamped`) the stamp `t` instead of its own. False if no whole
+/// frame starts there.
+pub fn restamp(envelope: &mut [u8], frame: usize, t: f64) -> bool {
+    let Some((_, n)) = envelope.get(frame..).and_then(read_leb128) else {
+        return false;
+    };
+    match envelope.get_mut(frame + n..frame + n + STAMP) {
+        Some(stamp) => {
+            stamp.copy_from_slice(&t.to_le_bytes());
+            true
+        }
+        None => false,
+    }
+}
+
 /// `v` in LEB128 at the front of `out` (which has room for 10 bytes);
 /// returns the bytes used.
 #[inline(always)]
@@ -745,6 +761,17 @@ mod tests {
         let short = decode_envelope::<u8>(&[1, 2]).unwrap_err();
         assert!(short.contains("has no stamp"), "{short}");
         assert!(decode_envelope::<u8>(&env[..env.len() - 1]).is_err());
+        // A frame's stamp is replaced in place, whichever frame it is, and
+        // nothing else changes; no frame starts beyond the envelope.
+        let before = env.clone();
+        assert!(restamp(&mut env, len.held, 7.0));
+        assert!(restamp(&mut env, 0, 6.0));
+        let back: Vec<(f64, Msg)> = decode_envelope(&env).unwrap();
+        assert_eq!((back[0].0, &back[0].1), (6.0, &v));
+        assert_eq!((back[1].0, back[1].1[0].0), (7.0, 3));
+        assert_eq!(env.len(), before.len());
+        assert!(!restamp(&mut env, before.len(), 1.0));
+        assert!(!restamp(&mut env, before.len() - 3, 1.0));
     }
 
     #[test]

@@ -27,7 +27,7 @@ use std::time::{Duration, Instant};
 
 use super::codec::{
     PathContext, WireDone, append_stamped, decode_envelope, for_each_frame, pack, pack_done_into,
-    unpack,
+    restamp, unpack,
 };
 use super::message::{
     Active, Finished, LinkModel, NodeReport, Part, Path, Routed, Share, ToHost, ToNode,
@@ -333,6 +333,9 @@ struct Node<'a> {
     cpu_window: Option<CpuWindow>,
     /// Per link, the envelope of messages waiting to go (`codec`).
     waiting: Vec<Vec<u8>>,
+    /// Per link, where in `waiting` the clock frame not yet sent starts: a
+    /// newer bound takes its stamp (`tell`) instead of adding a frame.
+    clock_frame: Vec<Option<usize>>,
     /// Envelopes received and taken, emptied, for the next ones to send
     /// (`SPARE_ENVELOPES`).
     spare: Vec<Vec<u8>>,
@@ -410,6 +413,7 @@ impl<'a> Node<'a> {
             heard: vec![0.0; d],
             announced: 0.0,
             waiting: (0..=d).map(|_| Vec::with_capacity(ENVELOPE_ROOM)).collect(),
+            clock_frame: vec![None; d + 1],
             spare: Vec::new(),
             carries: vec![false; d + 1],
             done: Vec::new(),
@@ -553,10 +557,22 @@ impl<'a> Node<'a> {
     /// the lag; so what the node with the slowest clock has heard of each
     /// neighbour is at most half the lag behind that neighbour's clock, so
     /// at most half the lag behind its own, and it never waits.
+    ///
+    /// A link whose envelope still holds a clock frame gets the new bound
+    /// in that frame: the neighbour, which takes an envelope's frames
+    /// together, learns the same as from two frames, and a link that stays
+    /// full (its neighbour's thread waiting for a core) holds one clock
+    /// frame, not one per half lag, which the memory plan does not size.
     fn tell(&mut self, bound: f64) -> Result<(), NodeError> {
         self.announced = bound;
         let from = self.id;
         for k in 0..self.share.dimension as usize {
+            if let Some(at) = self.clock_frame[k]
+                && restamp(&mut self.waiting[k], at, bound)
+            {
+                continue;
+            }
+            self.clock_frame[k] = Some(self.waiting[k].len());
             let len = append_stamped(&mut self.waiting[k], &ToNode::Clock { from }, |_| bound)?;
             self.hold(len.held);
         }
@@ -1206,6 +1222,7 @@ impl<'a> Node<'a> {
                 self.host_flushed = Instant::now();
             }
             let bytes = std::mem::take(&mut self.waiting[i]);
+            let clock_frame = self.clock_frame[i].take();
             let n = bytes.len();
             match self.links.try_send(self.link_of(i), bytes) {
                 Ok(None) => {
@@ -1221,7 +1238,10 @@ impl<'a> Node<'a> {
                         self.uncovered_waiting = 0;
                     }
                 }
-                Ok(Some(back)) => self.waiting[i] = back,
+                Ok(Some(back)) => {
+                    self.waiting[i] = back;
+                    self.clock_frame[i] = clock_frame;
+                }
                 // A neighbour that has stopped needs no more clock news;
                 // anything else it would have needed.
                 Err(_) if !self.carries[i] && self.link_of(i) != Link::Host => {
