@@ -460,8 +460,11 @@ impl CamRay {
                 // x − c·z = 0 through the eye: no division by z. The plane
                 // also holds the mirror image of the face (z < 0, where
                 // x/z = c too): a crossing there is not a crossing of the face.
-                let t = (c * self.o.z - self.o[axis]) / (self.d[axis] - c * self.d.z);
-                (t.is_finite() && self.o.z + t * self.d.z > 0.0).then_some(t)
+                // Its depth is motion / den, whose sign does not cancel
+                // (`traverse::side_crossing`).
+                let den = self.d[axis] - c * self.d.z;
+                let t = (c * self.o.z - self.o[axis]) / den;
+                (t.is_finite() && self.motion(region, axis) * den > 0.0).then_some(t)
             }
             Region::Back => {
                 let t = (c - self.o[axis]) / self.d[axis];
@@ -482,26 +485,40 @@ impl CamRay {
 
     /// Screen coordinates at `t` in `region`. On the eye plane (front region
     /// entered from behind, or a primary ray at the eye) the limit of
-    /// `x/z` as the ray moves into `z > 0` is used: ±∞ by the sign of `x`,
-    /// or `dx/dz` where `x` is 0 too.
+    /// `x/z` as the ray moves into `z > 0` is used: ±∞ by the sign of `x`
+    /// there, or `dx/dz` where `x` is 0 too.
+    ///
+    /// That sign is taken from the motion (`motion`): at the eye plane
+    /// `x = −motion / dz`, exactly, where the point's own `x` may be
+    /// rounding noise (a ray passing next to the eye), and so may its `z`
+    /// at the front region's start, `t0 = −oz / dz`, where the division
+    /// would give any screen position. The walk then starts at the side
+    /// of the screen the motion comes from and follows the motion's sign
+    /// through the side faces (`traverse::side_crossing`), as the exact
+    /// ray does: seen from the eye's side, a ray through the eye's
+    /// neighbourhood sweeps in from infinity to `d/dz`.
     pub fn screen_at(&self, region: Region, t: f64) -> (f64, f64, f64) {
         let p = self.at(t);
         match region {
             Region::Back => (p.x, p.y, p.z.min(0.0)),
-            Region::Front if p.z > 0.0 => (p.x / p.z, p.y / p.z, p.z),
+            Region::Front if p.z > 0.0 && !(self.d.z > 0.0 && t <= -self.o.z / self.d.z) => {
+                (p.x / p.z, p.y / p.z, p.z)
+            }
             Region::Front => {
-                let lim = |x: f64, dx: f64| {
+                let lim = |axis: usize| {
+                    // The sign of x at the eye plane: −motion · dz.
+                    let x = -self.motion(Region::Front, axis) * self.d.z;
                     if x > 0.0 {
                         f64::INFINITY
                     } else if x < 0.0 {
                         f64::NEG_INFINITY
                     } else {
-                        let v = dx / self.d.z;
+                        let v = self.d[axis] / self.d.z;
                         if v.is_nan() { 0.0 } else { v }
                     }
                 };
                 // A point at the eye itself (primary rays): x = y = 0.
-                (lim(p.x, self.d.x), lim(p.y, self.d.y), 0.0)
+                (lim(0), lim(1), 0.0)
             }
         }
     }

@@ -102,15 +102,28 @@ impl CellStructure {
 /// A side plane's crossing `x = c·z` (front) or `x = c` (back) along
 /// `axis`, or infinity for none (parallel, at infinity, or, in front, the
 /// plane's mirror half behind the eye).
+///
+/// In front, the crossing's depth `o.z + t·d.z` is `motion / (d[axis] −
+/// c·d.z)`, with `motion = d[axis]·o.z − o[axis]·d.z` (`CamRay::motion`,
+/// held in `rr.m`): its sign is taken from that quotient's signs, never
+/// from the sum, which cancels for a ray that passes next to the eye.
+/// Such a ray keeps its screen coordinate (its motion is rounding noise),
+/// and every side plane meets its line at the eye plane, where the sum's
+/// sign is noise too: a crossing found there, far behind the ray's start,
+/// took the walk out of its cell at once (a random scene's refracted ray,
+/// which then missed the cone it was inside). By the quotient, the
+/// crossing lies on the face's side of the eye exactly when the motion
+/// the walk chose the face by points there.
 #[inline(always)]
 fn side_crossing<const FRONT: bool>(rr: &RegionRay, axis: usize, c: f64) -> f64 {
     let (o, d) = (rr.cam.o, rr.cam.d);
-    let t = if FRONT {
-        (c * o.z - o[axis]) / (d[axis] - c * d.z)
+    let (t, ahead) = if FRONT {
+        let den = d[axis] - c * d.z;
+        ((c * o.z - o[axis]) / den, rr.m[axis] * den > 0.0)
     } else {
-        (c - o[axis]) / d[axis]
+        ((c - o[axis]) / d[axis], true)
     };
-    if c.is_finite() && t.is_finite() && (!FRONT || o.z + t * d.z > 0.0) {
+    if c.is_finite() && t.is_finite() && ahead {
         t
     } else {
         f64::INFINITY

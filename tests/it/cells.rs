@@ -281,10 +281,13 @@ struct Compare<'a> {
     roth: RothTracer<'a>,
     cells: CellTracer<'a>,
     diffs: &'a Mutex<Vec<String>>,
+    /// The primitive the current ray leaves (`Tracer::leaving`).
+    leaving: Option<PrimId>,
 }
 
 impl Tracer for Compare<'_> {
     fn leaving(&mut self, prim: Option<PrimId>) {
+        self.leaving = prim;
         self.roth.leaving(prim);
         self.cells.leaving(prim);
     }
@@ -298,9 +301,10 @@ impl Tracer for Compare<'_> {
         .map_err(|_| "a panic");
         if b != Ok(a) {
             self.diffs.lock().unwrap().push(format!(
-                "ray origin {:?} dir {:?} in ({t_min:e}, {t_max:e}): roth {a:?}, cells {b:?}",
+                "ray origin {:?} dir {:?} in ({t_min:e}, {t_max:e}) leaving {:?}: roth {a:?}, cells {b:?}",
                 ray.origin.to_array(),
-                ray.dir.to_array()
+                ray.dir.to_array(),
+                self.leaving,
             ));
         }
         a
@@ -347,6 +351,7 @@ fn differences(scene: &Scene, opts: &RenderOptions, choice: SegmentChoice) -> St
             roth: RothTracer::new(scene),
             cells: CellTracer::new(&cs, scene),
             diffs: &diffs,
+            leaving: None,
         },
         |_, _| false,
         &|_| {},
@@ -580,8 +585,9 @@ fn random_scene(seed: u64) -> (SceneFile, String) {
 }
 
 /// Rays from anywhere in and around random scenes, in any direction
-/// (including along axes, with zero, −0.0 and subnormal components, and
-/// through corners of cells, where a ray leaves by an edge): the side-face
+/// (including along axes, with zero, −0.0 and subnormal components,
+/// through corners of cells, where a ray leaves by an edge, and along
+/// lines through the eye, whose screen motion is noise): the side-face
 /// walk of non-primary rays, in both regions and with both ways of cutting
 /// the screen, finds what Roth finds.
 #[test]
@@ -612,7 +618,7 @@ fn random_rays_in_random_scenes_hit_what_roth_hits() {
         let mut roth = RothTracer::new(&scene);
         let mut tracer = CellTracer::new(&cs, &scene);
         for k in 0..500 {
-            let o = Vec3::new(next(), next(), next()) * 30.0 - 15.0;
+            let mut o = Vec3::new(next(), next(), next()) * 30.0 - 15.0;
             let mut d = Vec3::new(next(), next(), next()) * 2.0 - 1.0;
             // Some directions along the axes or planes, with signed zeros
             // and subnormals.
@@ -627,6 +633,25 @@ fn random_rays_in_random_scenes_hit_what_roth_hits() {
                 2 => {
                     if let Some(p) = cell_corner(&cs, [next(), next(), next(), next()]) {
                         d = p - o;
+                    }
+                }
+                // Along a line through the eye, away from it or toward it:
+                // the ray keeps its screen position (its motion across
+                // the screen is rounding noise), and every side plane
+                // meets its line at the eye.
+                3 | 4 => {
+                    // From inside a primitive's box, where the ray soon
+                    // meets what its cell holds.
+                    let prims = &scene.primitives;
+                    let b = prims[(next() * prims.len() as f64) as usize].bounds;
+                    if k % 5 == 4 && !b.is_empty() && (b.max - b.min).is_finite() {
+                        o = b.min + (b.max - b.min) * Vec3::new(next(), next(), next());
+                    }
+                    // Within rounding of the eye, not through it exactly.
+                    let jitter = Vec3::new(next(), next(), next()) - 0.5;
+                    d = o - scene.camera.eye + jitter * (o - scene.camera.eye).length() * 1e-15;
+                    if k % 2 == 1 {
+                        d = -d;
                     }
                 }
                 _ => {}

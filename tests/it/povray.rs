@@ -315,7 +315,8 @@ fn bundled_scenes_agree_with_povray() {
 
 #[test]
 fn random_csg_scenes_agree_with_povray() {
-    let cases = (0..24u64)
+    // More seeds: `HYPERCAST_SEEDS=a..b`.
+    let cases = crate::cells::seeds(0..24)
         .map(|seed| {
             let opts = RandomCsgOptions {
                 camera: CameraPlacement::Mixed,
