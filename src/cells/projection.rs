@@ -433,6 +433,48 @@ pub struct CamRay {
     pub d: Vec3,
 }
 
+/// A front screen coordinate `q = x/z` of a point of a ray, kept on the
+/// side of the ray's limit `lim = dx/dz` (its screen position at infinite
+/// depth) where its motion puts every point of it: exactly, `q − lim =
+/// −motion / (dz·z)`. Near the eye `x` and `z` are both rounding noise and
+/// so is their quotient, which could put the walk on the far side of
+/// `lim`, from where its motion (which never crosses `lim`) cannot bring
+/// it back; there it is `lim` itself. Elsewhere the quotient is on its
+/// side already, and this changes nothing. A `dz` that is zero or
+/// subnormal acts as zero (`ROBUSTNESS.md` case 28): the ray runs along
+/// the eye plane, has no limit, and `q` is kept.
+#[inline]
+pub fn beside_limit(q: f64, lim: f64, motion: f64, dz: f64) -> f64 {
+    if !dz.is_normal() || !lim.is_finite() {
+        return q;
+    }
+    match limit_side(motion, dz) {
+        0.0 => lim,
+        side if (side > 0.0 && q < lim) || (side < 0.0 && q > lim) => lim,
+        _ => q,
+    }
+}
+
+/// Whether `a·b > 0`, without the product (which can underflow to zero).
+#[inline]
+pub fn same_sign(a: f64, b: f64) -> bool {
+    (a > 0.0 && b > 0.0) || (a < 0.0 && b < 0.0)
+}
+
+/// The sign (1, −1, or 0) of `−motion·dz`, without the product (which
+/// can underflow to zero): which side of a front ray's limit its points
+/// lie on (`beside_limit`), and, at the eye plane, the sign of its `x`.
+#[inline]
+pub fn limit_side(motion: f64, dz: f64) -> f64 {
+    if motion == 0.0 || dz == 0.0 || motion.is_nan() || dz.is_nan() {
+        0.0
+    } else if (motion > 0.0) == (dz > 0.0) {
+        -1.0
+    } else {
+        1.0
+    }
+}
+
 impl CamRay {
     pub fn at(&self, t: f64) -> Vec3 {
         self.o + self.d * t
@@ -464,7 +506,7 @@ impl CamRay {
                 // (`traverse::side_crossing`).
                 let den = self.d[axis] - c * self.d.z;
                 let t = (c * self.o.z - self.o[axis]) / den;
-                (t.is_finite() && self.motion(region, axis) * den > 0.0).then_some(t)
+                (t.is_finite() && same_sign(self.motion(region, axis), den)).then_some(t)
             }
             Region::Back => {
                 let t = (c - self.o[axis]) / self.d[axis];
@@ -502,12 +544,20 @@ impl CamRay {
         match region {
             Region::Back => (p.x, p.y, p.z.min(0.0)),
             Region::Front if p.z > 0.0 && !(self.d.z > 0.0 && t <= -self.o.z / self.d.z) => {
-                (p.x / p.z, p.y / p.z, p.z)
+                let at = |axis: usize| {
+                    beside_limit(
+                        p[axis] / p.z,
+                        self.d[axis] / self.d.z,
+                        self.motion(Region::Front, axis),
+                        self.d.z,
+                    )
+                };
+                (at(0), at(1), p.z)
             }
             Region::Front => {
                 let lim = |axis: usize| {
                     // The sign of x at the eye plane: −motion · dz.
-                    let x = -self.motion(Region::Front, axis) * self.d.z;
+                    let x = limit_side(self.motion(Region::Front, axis), self.d.z);
                     if x > 0.0 {
                         f64::INFINITY
                     } else if x < 0.0 {
