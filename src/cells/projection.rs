@@ -434,31 +434,30 @@ pub struct CamRay {
 }
 
 /// A front screen coordinate `q = x/z` of a point of a ray, kept on the
-/// side of the ray's limit `lim = dx/dz` (its screen position at infinite
-/// depth) where its motion puts every point of it: exactly, `q − lim =
+/// side of the ray's limit `dx/dz` (its screen position at infinite depth)
+/// where its motion puts every point of it: exactly, `q − dx/dz =
 /// −motion / (dz·z)`. Near the eye `x` and `z` are both rounding noise and
-/// so is their quotient, which could put the walk on the far side of
-/// `lim`, from where its motion (which never crosses `lim`) cannot bring
-/// it back; there it is `lim` itself. Elsewhere the quotient is on its
-/// side already, and this changes nothing. A `dz` that is zero or
-/// subnormal acts as zero (`ROBUSTNESS.md` case 28): the ray runs along
-/// the eye plane, has no limit, and `q` is kept.
+/// so is their quotient, which could put the walk on the far side of the
+/// limit, from where its motion (which never crosses the limit) cannot
+/// bring it back; there it is the limit itself. Elsewhere the quotient is
+/// on its side already, and this changes nothing (and costs no division).
+/// A `dz` that is zero or subnormal acts as zero (`ROBUSTNESS.md` case
+/// 28): the ray runs along the eye plane, has no limit, and `q` is kept.
 #[inline]
-pub fn beside_limit(q: f64, lim: f64, motion: f64, dz: f64) -> f64 {
-    if !dz.is_normal() || !lim.is_finite() {
+pub fn beside_limit(q: f64, dx: f64, motion: f64, dz: f64) -> f64 {
+    if !dz.is_normal() {
         return q;
     }
-    match limit_side(motion, dz) {
-        0.0 => lim,
-        side if (side > 0.0 && q < lim) || (side < 0.0 && q > lim) => lim,
-        _ => q,
+    let side = limit_side(motion, dz);
+    // The sign of q − dx/dz, as that of (q·dz − dx)·dz.
+    let off = q * dz - dx;
+    let wrong = side == 0.0 || (off * dz) * side < 0.0;
+    if wrong {
+        let lim = dx / dz;
+        if lim.is_finite() { lim } else { q }
+    } else {
+        q
     }
-}
-
-/// Whether `a·b > 0`, without the product (which can underflow to zero).
-#[inline]
-pub fn same_sign(a: f64, b: f64) -> bool {
-    (a > 0.0 && b > 0.0) || (a < 0.0 && b < 0.0)
 }
 
 /// The sign (1, −1, or 0) of `−motion·dz`, without the product (which
@@ -506,7 +505,7 @@ impl CamRay {
                 // (`traverse::side_crossing`).
                 let den = self.d[axis] - c * self.d.z;
                 let t = (c * self.o.z - self.o[axis]) / den;
-                (t.is_finite() && same_sign(self.motion(region, axis), den)).then_some(t)
+                (t.is_finite() && self.motion(region, axis) * den > 0.0).then_some(t)
             }
             Region::Back => {
                 let t = (c - self.o[axis]) / self.d[axis];
@@ -539,38 +538,52 @@ impl CamRay {
     /// through the side faces (`traverse::side_crossing`), as the exact
     /// ray does: seen from the eye's side, a ray through the eye's
     /// neighbourhood sweeps in from infinity to `d/dz`.
+    #[inline]
     pub fn screen_at(&self, region: Region, t: f64) -> (f64, f64, f64) {
         let p = self.at(t);
         match region {
             Region::Back => (p.x, p.y, p.z.min(0.0)),
-            Region::Front if p.z > 0.0 && !(self.d.z > 0.0 && t <= -self.o.z / self.d.z) => {
-                let at = |axis: usize| {
-                    beside_limit(
-                        p[axis] / p.z,
-                        self.d[axis] / self.d.z,
-                        self.motion(Region::Front, axis),
-                        self.d.z,
-                    )
-                };
-                (at(0), at(1), p.z)
-            }
-            Region::Front => {
-                let lim = |axis: usize| {
-                    // The sign of x at the eye plane: −motion · dz.
-                    let x = limit_side(self.motion(Region::Front, axis), self.d.z);
-                    if x > 0.0 {
-                        f64::INFINITY
-                    } else if x < 0.0 {
-                        f64::NEG_INFINITY
-                    } else {
-                        let v = self.d[axis] / self.d.z;
-                        if v.is_nan() { 0.0 } else { v }
-                    }
-                };
-                // A point at the eye itself (primary rays): x = y = 0.
-                (lim(0), lim(1), 0.0)
+            // At the ray's origin, in front (most walks start there): the
+            // quotient is of exact numbers, as near the true position as
+            // the limit is to the ray's own.
+            Region::Front if t == 0.0 && p.z > 0.0 => (p.x / p.z, p.y / p.z, p.z),
+            Region::Front => self.screen_in_front(p, t),
+        }
+    }
+
+    /// `screen_at` in front, but at a ray's origin off the eye plane.
+    #[inline(never)]
+    fn screen_in_front(&self, p: Vec3, t: f64) -> (f64, f64, f64) {
+        // From the eye itself (primary rays): the limit, at once; it is
+        // what the arms below give, the motion being zero.
+        if self.o == Vec3::ZERO && self.d.z.is_normal() {
+            let (x, y) = (self.d.x / self.d.z, self.d.y / self.d.z);
+            if x.is_finite() && y.is_finite() {
+                return (x, y, p.z.max(0.0));
             }
         }
+        // Off the eye plane, unless at the front region's start (`t0` of
+        // `region_interval`, by the same division) coming from behind.
+        if p.z > 0.0 && !(self.o.z < 0.0 && self.d.z > 0.0 && t <= -self.o.z / self.d.z) {
+            let at = |axis: usize| {
+                let q = p[axis] / p.z;
+                beside_limit(q, self.d[axis], self.motion(Region::Front, axis), self.d.z)
+            };
+            return (at(0), at(1), p.z);
+        }
+        let lim = |axis: usize| {
+            // The sign of x at the eye plane: −motion · dz.
+            let x = limit_side(self.motion(Region::Front, axis), self.d.z);
+            if x > 0.0 {
+                f64::INFINITY
+            } else if x < 0.0 {
+                f64::NEG_INFINITY
+            } else {
+                let v = self.d[axis] / self.d.z;
+                if v.is_nan() { 0.0 } else { v }
+            }
+        };
+        (lim(0), lim(1), 0.0)
     }
 
     /// The parameter interval `[lo, hi)` of the ray in `region`, in the

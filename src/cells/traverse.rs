@@ -15,7 +15,7 @@
 //! cell and the first boundary found is the one Roth's brute force finds.
 
 use super::bsp::stitch;
-use super::projection::{CamRay, Region, beside_limit, contains, same_sign};
+use super::projection::{CamRay, Region, beside_limit, contains};
 use super::share::Hull;
 use super::{CellStructure, NOT_HELD, REMOTE, RegionCells, SubtreeLeaf, is_remote};
 use crate::csg::{Crossing, EvalCounts, Evaluator, NodeId, PrimHits, PrimId};
@@ -55,9 +55,6 @@ pub struct RegionRay {
     /// subnormal `d.z`, whose crossings are then not finite: none, as for
     /// `d.z = 0`).
     inv_dz: f64,
-    /// In front, the ray's screen position at infinite depth, `d/d.z`
-    /// (`projection::beside_limit`).
-    lim: [f64; 2],
 }
 
 impl RegionRay {
@@ -67,7 +64,6 @@ impl RegionRay {
             cam,
             m: [cam.motion(region, 0), cam.motion(region, 1), cam.d.z],
             inv_dz: 1.0 / cam.d.z,
-            lim: [cam.d.x / cam.d.z, cam.d.y / cam.d.z],
         }
     }
 }
@@ -123,7 +119,7 @@ fn side_crossing<const FRONT: bool>(rr: &RegionRay, axis: usize, c: f64) -> f64 
     let (o, d) = (rr.cam.o, rr.cam.d);
     let (t, ahead) = if FRONT {
         let den = d[axis] - c * d.z;
-        ((c * o.z - o[axis]) / den, same_sign(rr.m[axis], den))
+        ((c * o.z - o[axis]) / den, rr.m[axis] * den > 0.0)
     } else {
         ((c - o[axis]) / d[axis], true)
     };
@@ -326,7 +322,7 @@ impl RegionCells {
                     (o[other] + t_out * d[other], z.min(0.0))
                 } else if z > 0.0 {
                     let q = (o[other] + t_out * d[other]) / z;
-                    (beside_limit(q, rr.lim[other], rr.m[other], d.z), z)
+                    (beside_limit(q, d[other], rr.m[other], d.z), z)
                 } else {
                     let (sx, sy, z) = rr.cam.screen_at(rr.region, t_out);
                     (if other == 0 { sx } else { sy }, z)
