@@ -544,8 +544,8 @@ impl CamRay {
         match region {
             Region::Back => (p.x, p.y, p.z.min(0.0)),
             // At the ray's origin, in front (most walks start there): the
-            // quotient is of exact numbers, as near the true position as
-            // the limit is to the ray's own.
+            // quotient of its exact coordinates, correctly rounded, which
+            // the side rule (`beside_limit`) could move by an ulp at most.
             Region::Front if t == 0.0 && p.z > 0.0 => (p.x / p.z, p.y / p.z, p.z),
             Region::Front => self.screen_in_front(p, t),
         }
