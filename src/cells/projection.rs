@@ -460,6 +460,15 @@ pub fn beside_limit(q: f64, dx: f64, motion: f64, dz: f64) -> f64 {
     }
 }
 
+/// Where a ray at camera depth `oz`, moving by `dz`, crosses the eye
+/// plane: `(0 − oz) · (1 / dz)`, the arithmetic of the walk's depth
+/// crossings (`traverse::depth_crossing`), so that the regions' common
+/// end and the walk's exit through the eye plane are the same `t`.
+#[inline]
+pub fn eye_plane_crossing(oz: f64, dz: f64) -> f64 {
+    (0.0 - oz) * (1.0 / dz)
+}
+
 /// The sign (1, −1, or 0) of `−motion·dz`, without the product (which
 /// can underflow to zero): which side of a front ray's limit its points
 /// lie on (`beside_limit`), and, at the eye plane, the sign of its `x`.
@@ -563,8 +572,10 @@ impl CamRay {
             }
         }
         // Off the eye plane, unless at the front region's start (`t0` of
-        // `region_interval`, by the same division) coming from behind.
-        if p.z > 0.0 && !(self.o.z < 0.0 && self.d.z > 0.0 && t <= -self.o.z / self.d.z) {
+        // `region_interval`, by the same arithmetic) coming from behind.
+        if p.z > 0.0
+            && !(self.o.z < 0.0 && self.d.z > 0.0 && t <= eye_plane_crossing(self.o.z, self.d.z))
+        {
             let at = |axis: usize| {
                 let q = p[axis] / p.z;
                 beside_limit(q, self.d[axis], self.motion(Region::Front, axis), self.d.z)
@@ -599,7 +610,13 @@ impl CamRay {
                 (0.0, 0.0)
             };
         }
-        let t0 = -self.o.z / dz;
+        // By the walk's own arithmetic for a depth plane
+        // (`traverse::depth_crossing` at z = 0), to the bit: the region's
+        // end is where its last cell's exit through the eye plane is. (A
+        // division came out an ulp past that exit, and a boundary at that
+        // `t`, a face through the eye hit by a ray through the eye,
+        // belonged to neither region.)
+        let t0 = eye_plane_crossing(self.o.z, dz);
         let front_first = dz < 0.0;
         match (region == Region::Front, front_first) {
             (true, true) | (false, false) => (f64::NEG_INFINITY, t0),
