@@ -460,13 +460,21 @@ pub fn beside_limit(q: f64, dx: f64, motion: f64, dz: f64) -> f64 {
     }
 }
 
+/// Where a ray at camera depth `oz`, with `inv_dz = 1 / dz`, crosses the
+/// depth plane `z`: the one arithmetic of every depth crossing, the
+/// walk's (`traverse::depth_crossing`) and the regions' common end
+/// (`eye_plane_crossing`), which must be the same `t` to the bit.
+#[inline(always)]
+pub fn depth_plane_crossing(z: f64, oz: f64, inv_dz: f64) -> f64 {
+    (z - oz) * inv_dz
+}
+
 /// Where a ray at camera depth `oz`, moving by `dz`, crosses the eye
-/// plane: `(0 − oz) · (1 / dz)`, the arithmetic of the walk's depth
-/// crossings (`traverse::depth_crossing`), so that the regions' common
-/// end and the walk's exit through the eye plane are the same `t`.
+/// plane: the walk's depth crossing at `z = 0`, so that the regions' end
+/// and the walk's exit through the eye plane are the same `t`.
 #[inline]
 pub fn eye_plane_crossing(oz: f64, dz: f64) -> f64 {
-    (0.0 - oz) * (1.0 / dz)
+    depth_plane_crossing(0.0, oz, 1.0 / dz)
 }
 
 /// The sign (1, −1, or 0) of `−motion·dz`, without the product (which

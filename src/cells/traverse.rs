@@ -15,7 +15,7 @@
 //! cell and the first boundary found is the one Roth's brute force finds.
 
 use super::bsp::stitch;
-use super::projection::{CamRay, Region, beside_limit, contains};
+use super::projection::{CamRay, Region, beside_limit, contains, depth_plane_crossing};
 use super::share::Hull;
 use super::{CellStructure, NOT_HELD, REMOTE, RegionCells, SubtreeLeaf, is_remote};
 use crate::csg::{Crossing, EvalCounts, Evaluator, NodeId, PrimHits, PrimId};
@@ -133,7 +133,7 @@ fn side_crossing<const FRONT: bool>(rr: &RegionRay, axis: usize, c: f64) -> f64 
 /// A depth plane's crossing (not finite for none).
 #[inline(always)]
 fn depth_crossing(rr: &RegionRay, z: f64) -> f64 {
-    (z - rr.cam.o.z) * rr.inv_dz
+    depth_plane_crossing(z, rr.cam.o.z, rr.inv_dz)
 }
 
 impl CellStructure {

@@ -241,9 +241,11 @@ impl Drop for ChannelNode {
     fn drop(&mut self) {
         self.to.clear();
         self.from.clear();
-        let (closed_to, closed_from) = bounded(0);
-        drop(std::mem::replace(&mut self.to_host, closed_to));
-        drop(std::mem::replace(&mut self.from_host, closed_from));
+        // The host's ends are fields, not options: each is swapped for an
+        // end of a channel of nobody's, and dropped.
+        let (unused_to, unused_from) = bounded(0);
+        drop(std::mem::replace(&mut self.to_host, unused_to));
+        drop(std::mem::replace(&mut self.from_host, unused_from));
         for b in &self.neighbour_bells {
             b.ring();
         }
