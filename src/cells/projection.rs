@@ -506,41 +506,6 @@ impl CamRay {
         }
     }
 
-    /// Where the ray crosses the side plane `screen[axis] = c` (None when
-    /// parallel or `c` is infinite).
-    #[inline]
-    pub fn cross_side(&self, region: Region, axis: usize, c: f64) -> Option<f64> {
-        if !c.is_finite() {
-            return None;
-        }
-        match region {
-            Region::Front => {
-                // x − c·z = 0 through the eye: no division by z. The plane
-                // also holds the mirror image of the face (z < 0, where
-                // x/z = c too): a crossing there is not a crossing of the face.
-                // Its depth is motion / den, whose sign does not cancel
-                // (`traverse::side_crossing`).
-                let den = self.d[axis] - c * self.d.z;
-                let t = (c * self.o.z - self.o[axis]) / den;
-                (t.is_finite() && self.motion(region, axis) * den > 0.0).then_some(t)
-            }
-            Region::Back => {
-                let t = (c - self.o[axis]) / self.d[axis];
-                t.is_finite().then_some(t)
-            }
-        }
-    }
-
-    /// Where the ray crosses the depth plane `z = c`.
-    #[inline]
-    pub fn cross_depth(&self, c: f64) -> Option<f64> {
-        if !c.is_finite() {
-            return None;
-        }
-        let t = (c - self.o.z) / self.d.z;
-        t.is_finite().then_some(t)
-    }
-
     /// Screen coordinates at `t` in `region`. On the eye plane (front region
     /// entered from behind, or a primary ray at the eye) the limit of
     /// `x/z` as the ray moves into `z > 0` is used: ±∞ by the sign of `x`

@@ -247,8 +247,8 @@ impl RegionCells {
         }
     }
 
-    /// `leave` for one region (`FRONT` or not), with the crossings of
-    /// `CamRay::cross_side` and `CamRay::cross_depth` written out.
+    /// `leave` for one region (`FRONT` or not): the ray's crossings of the
+    /// cell's side faces (`side_crossing`) and depth faces.
     #[inline(always)]
     fn exit_in<const FRONT: bool>(&self, rr: &RegionRay, s: u32, k: u32, t_in: f64) -> (f64, Face) {
         let rect = &self.supers[s as usize].rect;

@@ -91,14 +91,14 @@ pub fn append_stamped<T: Serialize>(
     // The body goes after the header, whose length depends on the body's:
     // encode it at the end, then move it up behind the header.
     let start = envelope.len();
-    const ROOM: usize = 10 + STAMP;
+    const ROOM: usize = LEB128_MAX + STAMP;
     envelope.extend_from_slice(&[0u8; ROOM]);
     if let Err(e) = bincode::serde::encode_into_std_write(body, envelope, config()) {
         envelope.truncate(start);
         return Err(format!("cannot encode: {e}"));
     }
     let body_len = envelope.len() - start - ROOM;
-    let mut head = [0u8; 10];
+    let mut head = [0u8; LEB128_MAX];
     let n = leb128(body_len as u64, &mut head);
     let wire = n + body_len;
     let t = stamp(wire);
@@ -128,8 +128,11 @@ pub fn restamp(envelope: &mut [u8], frame: usize, t: f64) -> bool {
     }
 }
 
-/// `v` in LEB128 at the front of `out` (which has room for 10 bytes);
-/// returns the bytes used.
+/// The longest LEB128 form of a u64: 64 bits at 7 a byte.
+const LEB128_MAX: usize = 10;
+
+/// `v` in LEB128 at the front of `out` (which has room for `LEB128_MAX`
+/// bytes); returns the bytes used.
 #[inline(always)]
 fn leb128(mut v: u64, out: &mut [u8]) -> usize {
     let mut n = 0;
@@ -146,9 +149,9 @@ fn leb128(mut v: u64, out: &mut [u8]) -> usize {
 #[inline]
 fn read_leb128(bytes: &[u8]) -> Option<(u64, usize)> {
     let mut v = 0u64;
-    for (i, &b) in bytes.iter().enumerate().take(10) {
+    for (i, &b) in bytes.iter().enumerate().take(LEB128_MAX) {
         // The tenth byte holds only the top bit.
-        if i == 9 && b > 1 {
+        if i == LEB128_MAX - 1 && b > 1 {
             return None;
         }
         v |= u64::from(b & 0x7f) << (7 * i);
@@ -558,18 +561,18 @@ fn unzigzag(v: u64) -> i64 {
 }
 
 /// The most bytes of a finished record packed by `pack_done_into`: a
-/// flags byte and five numbers of up to 10 bytes.
-const MAX_DONE_RECORD: usize = 1 + 5 * 10;
+/// flags byte and five numbers of up to `LEB128_MAX` bytes.
+const MAX_DONE_RECORD: usize = 1 + 5 * LEB128_MAX;
 
 /// The most bytes a node holds per finished record, in its list of
 /// records (`Finished`) or encoded in a message to the host waiting for
 /// the host's link: the record itself, and, were it alone in its
-/// message, the frame's header (its length, up to 10 bytes), stamp, the
+/// message, the frame's header (its length, up to `LEB128_MAX` bytes), stamp, the
 /// message's tag (1), node (up to 3) and the records' length (up to 5).
 /// The host's memory plan sizes the records no credit covers by it
 /// (`host::Plan::local_credits`).
 pub const DONE_RECORD_BOUND: usize = {
-    let encoded = MAX_DONE_RECORD + 10 + STAMP + 1 + 3 + 5;
+    let encoded = MAX_DONE_RECORD + LEB128_MAX + STAMP + 1 + 3 + 5;
     let decoded = std::mem::size_of::<Finished>();
     if encoded > decoded { encoded } else { decoded }
 };
