@@ -381,7 +381,7 @@ fn random_csg_scenes_render_identically_with_cells_and_roth() {
         // Through RON, so that the printed text is exactly what was tested.
         let ron = scene_to_string(&model, SceneSyntax::Ron).unwrap();
         let scene = load(&ron);
-        let r = options(64, 48);
+        let r = random_scene_options();
         let (roth, _) = render_roth(&scene, &r, &|_| {});
         assert_pixels_finite(&roth);
         for choice in CHOICES {
@@ -420,17 +420,6 @@ fn random_csg_scenes_render_identically_with_cells_and_roth() {
     );
 }
 
-/// Random scenes where shadow rays take the cells' shortcuts
-/// (`CellTracer::walk_shadow`): a shadow walk that meets no glass box and
-/// ends at a light outside every box stops at the first cell where the ray
-/// passes through an exposed solid, after asking the shadow cache. 150
-/// scenes of 1 to 60 primitives, half with glass and mirrors, flat unions
-/// and deeper trees, lights inside and outside the primitives' boxes,
-/// render bit-identically with Roth; and the test does exercise the
-/// shortcuts: in over a quarter of the scenes (55 of 147) they save
-/// intersection tests against the same cells without them (elsewhere a
-/// light lies in some box, or glass is in the way, or nothing casts a
-/// shadow).
 /// A random scene of up to `max` primitives with 1 to 3 lights, half of
 /// them with mirrors and glass, trees 1 to 4 deep, the camera outside,
 /// inside or with geometry behind the eye, by the seed.
@@ -453,6 +442,17 @@ pub(crate) fn lit_random_scene(
     (primitives, random_csg(seed, primitives, &opts))
 }
 
+/// Random scenes where shadow rays take the cells' shortcuts
+/// (`CellTracer::walk_shadow`): a shadow walk that meets no glass box and
+/// ends at a light outside every box stops at the first cell where the ray
+/// passes through an exposed solid, after asking the shadow cache. 150
+/// scenes of 1 to 60 primitives, half with glass and mirrors, flat unions
+/// and deeper trees, lights inside and outside the primitives' boxes,
+/// render bit-identically with Roth; and the test does exercise the
+/// shortcuts: in over a quarter of the scenes (55 of 147) they save
+/// intersection tests against the same cells without them (elsewhere a
+/// light lies in some box, or glass is in the way, or nothing casts a
+/// shadow).
 #[test]
 fn random_scenes_render_identically_with_the_shadow_shortcuts() {
     let mut failures = Vec::new();
@@ -461,7 +461,7 @@ fn random_scenes_render_identically_with_the_shadow_shortcuts() {
         let (primitives, model) = lit_random_scene(seed, 60);
         let ron = scene_to_string(&model, SceneSyntax::Ron).unwrap();
         let scene = load(&ron);
-        let r = options(64, 48);
+        let r = random_scene_options();
         let (roth, _) = render_roth(&scene, &r, &|_| {});
         for choice in CHOICES {
             let opts = CellOptions {
@@ -520,7 +520,7 @@ fn random_scenes_on_a_wide_ground_render_identically_with_the_clip() {
                 .unwrap()
                 .replacen("objects: [", ground, 1);
         let scene = load(&ron);
-        let r = options(64, 48);
+        let r = random_scene_options();
         let (roth, _) = render_roth(&scene, &r, &|_| {});
         let (film, _, cs) = render_cells(&scene, &r, CellOptions::default(), &|_| {});
         clipped += usize::from(cs.clip.is_some());
@@ -562,6 +562,20 @@ pub(crate) fn seeds(default: std::ops::Range<u64>) -> std::ops::Range<u64> {
     };
     let (a, b) = v.split_once("..").expect("HYPERCAST_SEEDS is a range a..b");
     a.parse().expect("HYPERCAST_SEEDS start")..b.parse().expect("HYPERCAST_SEEDS end")
+}
+
+/// The render options of the random-scene tests: 64x48, or the size
+/// `HYPERCAST_SIZE=WxH` gives for a hunt (pixel rays at other sizes
+/// take other paths past cell boundaries).
+fn random_scene_options() -> RenderOptions {
+    let Ok(v) = std::env::var("HYPERCAST_SIZE") else {
+        return options(64, 48);
+    };
+    let (w, h) = v.split_once('x').expect("HYPERCAST_SIZE is WxH");
+    options(
+        w.parse().expect("HYPERCAST_SIZE width"),
+        h.parse().expect("HYPERCAST_SIZE height"),
+    )
 }
 
 /// The options and primitive count of random scene `seed`: every camera

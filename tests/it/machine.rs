@@ -8,7 +8,7 @@ use std::path::PathBuf;
 
 use hypercast::cells::CellOptions;
 use hypercast::error::Error;
-use hypercast::machine::{self, MachineOptions, Topology};
+use hypercast::machine::{self, MachineOptions, Mapping, Topology};
 use hypercast::render::{self, Accel, Adaptive, RenderOptions};
 use hypercast::scene::{Scene, load_scene};
 use hypercast::trace::Film;
@@ -306,11 +306,13 @@ fn a_plan_too_large_for_balance_falls_back_to_a_leaner_one() {
 /// Issue 4's property: random scenes (lit, half of them with mirrors and
 /// glass, cameras outside, inside and with geometry behind the eye) at
 /// one of three sizes on a random dimension 0..=6, channel capacity 1 to
-/// 3, and node memory from the iPSC-D5's 4.5 MiB down to a few dozen KiB
+/// 3, node memory from the iPSC-D5's 4.5 MiB down to a few dozen KiB
 /// (the least the scene's plan accepts, so that flow control runs with
-/// windows of a sample or two): every run finishes (the machine checks that every ray created
-/// was finished exactly once, or fails), no node goes over its budget,
-/// and the image is exactly the single-node host render's. More seeds:
+/// windows of a sample or two), one sample a pixel, two, or adaptive
+/// refinement, and either mapping: every run finishes (the machine
+/// checks that every ray created was finished exactly once, or fails),
+/// no node goes over its budget, and the image (and the refinement's
+/// summary) is exactly the host's cells render's. More seeds:
 /// `HYPERCAST_SEEDS=a..b`.
 #[test]
 fn random_scenes_on_random_dimensions_equal_one_node() {
@@ -325,19 +327,46 @@ fn random_scenes_on_random_dimensions_equal_one_node() {
         let d = (mix % 7) as u32;
         let capacity = 1 + (mix / 7 % 3) as usize;
         let (w, h) = [(32, 24), (45, 31), (64, 48)][(mix / 21 % 3) as usize];
-        let (one, _) = cells(&scene, w, h);
-        let mut o = MachineOptions::new(w, h, 1);
+        // Mostly one sample a pixel; a quarter each two samples or the
+        // adaptive second pass (whose samples start mid-run).
+        let (spp, adaptive) = match mix / 63 % 4 {
+            2 => (2, None),
+            3 => (
+                1,
+                Some(Adaptive {
+                    threshold: 0.05,
+                    extra_spp: 3,
+                }),
+            ),
+            _ => (1, None),
+        };
+        let mapping = [Mapping::Balanced, Mapping::EqualArea][(mix / 252 % 2) as usize];
+        let host = render::render_host(
+            &scene,
+            &RenderOptions {
+                width: w,
+                height: h,
+                spp,
+                threads: 1,
+            },
+            adaptive,
+            Accel::Cells,
+            CellOptions::default(),
+            &|_| {},
+        );
+        let mut o = MachineOptions::new(w, h, spp);
         o.capacity = capacity;
+        o.mapping = mapping;
         // The smallest of these budgets that the plan accepts (a refusal
         // is the refusal the user would get, with its numbers).
         let budgets: [u64; 5] = [24 << 10, 64 << 10, 256 << 10, 1 << 20, 4_718_592];
         let mut outcome = None;
         for (i, &budget) in budgets.iter().enumerate() {
             let t = topo(d).with_overrides(None, Some(budget)).unwrap();
-            match machine::render(&scene, &t, &o, &|_| {}) {
-                Ok((film, stats, _)) => {
+            match machine::render_adaptive(&scene, &t, &o, adaptive, &|_| {}) {
+                Ok((film, stats, _, summary)) => {
                     tight += usize::from(i < 4);
-                    outcome = Some((film, stats, budget));
+                    outcome = Some((film, stats, summary, budget));
                     break;
                 }
                 Err(Error::Capacity(msg)) => assert!(
@@ -347,14 +376,21 @@ fn random_scenes_on_random_dimensions_equal_one_node() {
                 Err(e) => panic!("seed {seed}, d = {d}, budget {budget}: {e}"),
             }
         }
-        let (film, stats, budget) =
+        let (film, stats, summary, budget) =
             outcome.unwrap_or_else(|| panic!("seed {seed}: refused even on 4.5 MiB nodes"));
         check_stats(&scene, &stats);
-        if film.sums() != one.sums() {
+        let how = format!(
+            "seed {seed} ({primitives} primitives): d = {d}, capacity {capacity}, {budget} B, \
+             spp {spp}, {adaptive:?}, {}",
+            mapping.name()
+        );
+        if film.sums() != host.film.sums() {
             failures.push(format!(
-                "seed {seed} ({primitives} primitives): d = {d}, capacity {capacity}, {budget} B: {} pixels differ",
-                differing(&film, &one)
+                "{how}: {} pixels differ",
+                differing(&film, &host.film)
             ));
+        } else if summary != host.aa {
+            failures.push(format!("{how}: refinement {summary:?}, host {:?}", host.aa));
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");
