@@ -253,7 +253,30 @@ impl View {
         let mut planes: [[f64; 4]; 5] = [[0.0; 4]; 5];
         let mut n = 0;
         let margin = |v: f64| v.abs() * 1e-9 + 1e-12;
-        for (axis, lo, hi) in [(0usize, r.x0, r.x1), (1, r.y0, r.y1)] {
+        let scale = corners
+            .iter()
+            .fold(0.0f64, |m, c| m.max(c.abs().max_element()));
+        // The side planes only where clipping by them can be trusted: its
+        // vertices carry rounding at the scale of the box's corners, which
+        // must stay far below the super cell's width where the box is. A
+        // box reaching 1e20 across over a depth of 11 (a cylinder of that
+        // radius around the camera) came out clipped away entirely from a
+        // super cell 0.2 wide that it covers: its crossings with the side
+        // planes were some 1e4 off. There the box's whole depth in the
+        // region is taken, as section 3.3 does, which errs on the side of
+        // keeping it.
+        let depth = corners.iter().fold(0.0f64, |m, c| m.max(c.z.abs()));
+        let across = |lo: f64, hi: f64| match region {
+            Region::Front => (hi - lo) * depth,
+            Region::Back => hi - lo,
+        };
+        let trusted = scale * CLIP_ROUNDING <= across(r.x0, r.x1).min(across(r.y0, r.y1));
+        let sides = if trusted {
+            [(0usize, r.x0, r.x1), (1, r.y0, r.y1)]
+        } else {
+            [(0, f64::NAN, f64::NAN), (1, f64::NAN, f64::NAN)]
+        };
+        for (axis, lo, hi) in sides {
             let mut unit = [0.0; 4];
             unit[axis] = 1.0;
             match region {
@@ -374,9 +397,6 @@ impl View {
         // away in a mirror, had its cell end 1.2e-15 past it (padded by
         // its depth alone), within a rounding of the crossing: the walk
         // left the cell before the hit and missed the wall.
-        let scale = corners
-            .iter()
-            .fold(0.0f64, |m, c| m.max(c.abs().max_element()));
         let pad = (z1 - z0) * 1e-9 + scale * INFLATE_REL;
         Some(((z0 - pad).max(rz0), (z1 + pad).min(rz1)))
     }
@@ -399,6 +419,12 @@ fn plane_crossing(p: Vec3, q: Vec3, dp: f64, dq: f64) -> Vec3 {
         q + (p - q) * (dq / (dq - dp))
     }
 }
+
+/// How far the side-plane clipping of `View::depth_range_in` is trusted:
+/// its vertices are off by a few ulps of the box's largest coordinate
+/// (`plane_crossing`), and this bound (2^-40, some ten thousand ulps)
+/// must stay below the super cell's width at the box's depth.
+const CLIP_ROUNDING: f64 = 1.0 / (1u64 << 40) as f64;
 
 /// Relative inflation of projected bounds: rounding in the camera transform
 /// and in crossing parameters is ~1e-16 relative, so a primitive assigned
