@@ -313,7 +313,7 @@ fn a_plan_too_large_for_balance_falls_back_to_a_leaner_one() {
 /// checks that every ray created was finished exactly once, or fails),
 /// no node goes over its budget, and the image (and the refinement's
 /// summary) is exactly the host's cells render's. More seeds:
-/// `HYPERCAST_SEEDS=a..b`.
+/// `HYPERCAST_SEEDS=a..b`; one other size: `HYPERCAST_SIZE=WxH`.
 #[test]
 fn random_scenes_on_random_dimensions_equal_one_node() {
     use hypercast::scene::load::compile_model;
@@ -326,7 +326,8 @@ fn random_scenes_on_random_dimensions_equal_one_node() {
         let mix = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 40;
         let d = (mix % 7) as u32;
         let capacity = 1 + (mix / 7 % 3) as usize;
-        let (w, h) = [(32, 24), (45, 31), (64, 48)][(mix / 21 % 3) as usize];
+        let (w, h) = crate::cells::hunt_size()
+            .unwrap_or([(32, 24), (45, 31), (64, 48)][(mix / 21 % 3) as usize]);
         // Mostly one sample a pixel; a quarter each two samples or the
         // adaptive second pass (whose samples start mid-run).
         let (spp, adaptive) = match mix / 63 % 4 {
