@@ -276,7 +276,21 @@ impl View {
         } else {
             [(0, f64::NAN, f64::NAN), (1, f64::NAN, f64::NAN)]
         };
+        // A plane is used only where its distances stay finite: a super
+        // cell bounded at y = −7e307 (next to a box whose front is on the
+        // eye plane, projected to −∞) gave −c·z past f64's range at a
+        // depth of 5, and its clipping lost a rod it holds. Leaving a
+        // plane out only widens the range.
+        let reach = match region {
+            Region::Front => depth,
+            Region::Back => 1.0,
+        };
+        let finite = |c: f64| (4.0 * (c.abs() * reach + scale)).is_finite();
         for (axis, lo, hi) in sides {
+            let (lo, hi) = (
+                if finite(lo) { lo } else { f64::NAN },
+                if finite(hi) { hi } else { f64::NAN },
+            );
             let mut unit = [0.0; 4];
             unit[axis] = 1.0;
             match region {
