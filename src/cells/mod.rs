@@ -371,11 +371,15 @@ impl CellStructure {
                 hot[region as usize],
             );
             splits += partition.splits;
+            // A box with the eye at its boundary, to rounding, is in every
+            // super cell over its whole depth (`View::eye_at_boundary`): no
+            // cam box, no clipping.
             let cam_boxes: Vec<Option<projection::CamBox>> = prim_box
                 .iter()
                 .zip(&rects)
                 .map(|(b, r)| r.map(|_| view.cam_box(b)))
                 .collect();
+            let whole: Vec<bool> = prim_box.iter().map(|b| view.eye_at_boundary(b)).collect();
             // Each super cell's depth partition is its own (section 3.3), so
             // they are cut in parallel (`cut_super_cells`); their cells'
             // subtrees are then built here in super-cell order, so the
@@ -384,6 +388,7 @@ impl CellStructure {
                 region,
                 &mut partition.leaves,
                 &cam_boxes,
+                &whole,
                 opts.build_threads,
             );
             let mut first_cell = Vec::with_capacity(partition.leaves.len() + 1);
@@ -912,6 +917,7 @@ fn cut_super_cells(
     region: Region,
     leaves: &mut [bsp::Leaf],
     cam_boxes: &[Option<projection::CamBox>],
+    whole: &[bool],
     threads: usize,
 ) -> Vec<Vec<CutCell>> {
     let cut_one = |leaf: &mut bsp::Leaf| -> Vec<CutCell> {
@@ -922,6 +928,11 @@ fn cut_super_cells(
             let cb = cam_boxes[p as usize]
                 .as_ref()
                 .expect("a listed primitive has a projection");
+            if whole[p as usize] {
+                let (z0, z1) = View::depth_range_whole(cb, region);
+                extents.push((p, z0, z1));
+                return true;
+            }
             match View::depth_range_in(cb, region, &leaf.rect) {
                 Some((z0, z1)) => {
                     extents.push((p, z0, z1));

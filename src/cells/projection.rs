@@ -131,6 +131,16 @@ impl View {
             return None;
         }
         let corners = b.corners().map(|c| self.point(c));
+        if self.eye_at_boundary(b) {
+            let all = Rect {
+                x0: f64::NEG_INFINITY,
+                x1: f64::INFINITY,
+                y0: f64::NEG_INFINITY,
+                y1: f64::INFINITY,
+            };
+            let (z0, z1) = View::depth_range_whole(&corners, region);
+            return Some((all, z0, z1));
+        }
         let keep = |z: f64| match region {
             Region::Front => z >= 0.0,
             Region::Back => z <= 0.0,
@@ -232,6 +242,44 @@ impl View {
     /// The corners of `b` in camera coordinates.
     pub fn cam_box(&self, b: &Aabb) -> CamBox {
         b.corners().map(|c| self.point(c))
+    }
+
+    /// Whether the eye lies within the rounding of `b`'s camera
+    /// coordinates (`CLIP_ROUNDING` of their largest) of its boundary:
+    /// then those coordinates cannot tell on which side of it the eye is.
+    /// A mirror box 6 thick reaching from −1e20 to 1e30, with the camera
+    /// inside it 0.5 from a face, lost its thickness to rounding at 1e20
+    /// and projected to half the screen: no primary ray found it. Such a
+    /// box is taken to cover the whole screen, over its whole depth in
+    /// each region (`project_box`, `depth_range_whole`).
+    pub fn eye_at_boundary(&self, b: &Aabb) -> bool {
+        if b.is_empty() {
+            return false;
+        }
+        let reach = (b.min - self.eye)
+            .abs()
+            .max((b.max - self.eye).abs())
+            .max_element();
+        let e = reach * CLIP_ROUNDING;
+        let (grown, shrunk) = ((b.min - e, b.max + e), (b.min + e, b.max - e));
+        let inside = |(lo, hi): (Vec3, Vec3)| lo.cmple(self.eye).all() && self.eye.cmple(hi).all();
+        inside(grown) && !inside(shrunk)
+    }
+
+    /// The depth interval of a box (`corners`) in `region`, the eye plane
+    /// included, padded as `depth_range_in` pads: what it gives when no
+    /// side plane clips.
+    pub fn depth_range_whole(corners: &CamBox, region: Region) -> (f64, f64) {
+        let (z0, z1) = corners
+            .iter()
+            .fold((0.0f64, 0.0f64), |(a, b), c| (a.min(c.z), b.max(c.z)));
+        let (z0, z1) = inflate(z0, z1, 0);
+        let scale = corners
+            .iter()
+            .fold(0.0f64, |m, c| m.max(c.abs().max_element()));
+        let pad = (z1 - z0) * 1e-9 + scale * INFLATE_REL;
+        let (rz0, rz1) = region.depth_range();
+        ((z0 - pad).max(rz0), (z1 + pad).min(rz1))
     }
 
     /// The depth interval of the part of a box (`corners`, in camera

@@ -819,6 +819,28 @@ fn a_box_ending_at_the_eye_plane_leaves_its_neighbours_in_their_cells() {
     }
 }
 
+/// `scenes/small/mirror.ron`'s left mirror stretched from x = −1e20 to
+/// 1e30, so that the camera is inside it, half a unit from its face: the
+/// cells find its inside as Roth does. Found by the mutants (seed 36595
+/// of a longer run): at 1e20 its camera coordinates lost its thickness of
+/// 6 to rounding, it projected to half the screen, and 113 rays of a
+/// 12x9 render missed it (`View::eye_at_boundary`).
+#[test]
+fn a_box_around_the_camera_reaching_1e30_is_found_from_inside() {
+    let text = std::fs::read_to_string(util::repo("scenes/small/mirror.ron")).unwrap();
+    let mirror = "Box(min: (-2.1, -3, 0), max: (-2, 3, 3)";
+    assert!(text.contains(mirror), "mirror.ron changed");
+    for reach in [
+        "(-1e20, -3, 0), max: (1e30, 3, 3)",
+        "(-1e30, -3, 0), max: (1e20, 3, 3)",
+    ] {
+        let scene = util::scene(&text.replace(mirror, &format!("Box(min: {reach}")));
+        for (w, h) in [(12, 9), (64, 48)] {
+            assert_renders_equal(&scene, w, h);
+        }
+    }
+}
+
 /// `scenes/small/behind_eye.ron` with its back wall's near face at `y`.
 fn wall_behind_eye_scene(y: &str) -> Scene {
     let text = std::fs::read_to_string(util::repo("scenes/small/behind_eye.ron")).unwrap();
