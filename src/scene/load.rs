@@ -1183,6 +1183,25 @@ impl<'m> Compiler<'m> {
                 ));
             }
         }
+        if let Some((radius, size)) = curved_size(&prim).filter(|&(_, r)| r > 0.0 && !b.is_empty())
+        {
+            let reach = b.min.abs().max(b.max.abs()).max_element();
+            if size < reach * MIN_CURVED_SIZE {
+                let world = if prim.transform.is_some() {
+                    format!(" ({size:.3e} or more in the world)")
+                } else {
+                    String::new()
+                };
+                return Err(self.invalid(
+                    place.path(),
+                    format!(
+                        "{kind} has a radius of {radius}{world} where its coordinates reach \
+                         {reach:.3e}: its surface is lost in their rounding (the radius must be at \
+                         least 2^-48 = {MIN_CURVED_SIZE:.1e} of them)"
+                    ),
+                ));
+            }
+        }
         let id = PrimId(self.primitives.len() as u32);
         self.primitives.push(prim);
         Ok(self.tree.leaf(id))
@@ -1211,6 +1230,46 @@ fn check_finite(
             format!("{field} must be finite, got {}", fmt_vec(v)),
         ))
     }
+}
+
+/// The least radius of a sphere, cylinder or cone, against the largest
+/// coordinate it reaches: their intersections are computed from points at
+/// that magnitude (a centre, an end of the axis), which rounding places
+/// only to some 2^-53 of it, so that below 2^-48 the surface would be off
+/// by more than a thirtieth of the radius. Found by the scene mutants: a
+/// rod of radius 0.2 reaching 1e30 had its surface placed to some 1e14,
+/// the rays spawned on it started 1e16 away, and the cells and Roth
+/// disagreed on what those met (`docs/robustness.md`). Boxes, triangles
+/// and polygons have flat faces, placed to rounding of their own
+/// coordinates, and are not limited (a ground reaching 1e50 renders).
+pub const MIN_CURVED_SIZE: f64 = 1.0 / (1u64 << 48) as f64;
+
+/// The radius of a curved primitive (the larger of a cone's two) and, under
+/// a transform, a lower bound of its world radius (scaled by the map's
+/// least stretch, at least 1 / ‖inverse‖, bounded by the Frobenius norm);
+/// None for flat ones.
+fn curved_size(prim: &Primitive) -> Option<(f64, f64)> {
+    let radius = match prim.shape {
+        Shape::Sphere { radius, .. } => radius,
+        Shape::Cylinder { radius, .. } => radius,
+        Shape::Cone {
+            base_radius,
+            top_radius,
+            ..
+        } => base_radius.max(top_radius),
+        _ => return None,
+    };
+    let stretch = match &prim.transform {
+        Some(t) => {
+            let m = t.inv_linear;
+            let frobenius =
+                (m.x_axis.length_squared() + m.y_axis.length_squared() + m.z_axis.length_squared())
+                    .sqrt();
+            1.0 / frobenius
+        }
+        None => 1.0,
+    };
+    Some((radius, radius * stretch))
 }
 
 /// A position: finite and within `MAX_COORDINATE` of the origin.
