@@ -372,8 +372,8 @@ impl CellStructure {
             );
             splits += partition.splits;
             // A box with the eye at its boundary, to rounding, is in every
-            // super cell over its whole depth (`View::eye_at_boundary`): no
-            // cam box, no clipping.
+            // super cell over its whole depth (`View::eye_at_boundary`):
+            // its corners give the depth, unclipped.
             let cam_boxes: Vec<Option<projection::CamBox>> = prim_box
                 .iter()
                 .zip(&rects)
