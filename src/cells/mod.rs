@@ -323,6 +323,10 @@ impl CellStructure {
         let mut splits = 0;
         // Primitives per cell, for the statistics only.
         let mut prim_counts = Vec::new();
+        // A box with the eye at its boundary, to rounding, is in every
+        // super cell over its whole depth, in both regions
+        // (`View::eye_at_boundary`): its corners give the depth, unclipped.
+        let whole: Vec<bool> = prim_box.iter().map(|b| view.eye_at_boundary(b)).collect();
         let regions = Region::BOTH.map(|region| {
             let projected: Vec<Option<(Rect, f64, f64)>> = prim_box
                 .iter()
@@ -371,15 +375,11 @@ impl CellStructure {
                 hot[region as usize],
             );
             splits += partition.splits;
-            // A box with the eye at its boundary, to rounding, is in every
-            // super cell over its whole depth (`View::eye_at_boundary`):
-            // its corners give the depth, unclipped.
             let cam_boxes: Vec<Option<projection::CamBox>> = prim_box
                 .iter()
                 .zip(&rects)
                 .map(|(b, r)| r.map(|_| view.cam_box(b)))
                 .collect();
-            let whole: Vec<bool> = prim_box.iter().map(|b| view.eye_at_boundary(b)).collect();
             // Each super cell's depth partition is its own (section 3.3), so
             // they are cut in parallel (`cut_super_cells`); their cells'
             // subtrees are then built here in super-cell order, so the

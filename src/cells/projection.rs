@@ -273,13 +273,7 @@ impl View {
         let (z0, z1) = corners
             .iter()
             .fold((0.0f64, 0.0f64), |(a, b), c| (a.min(c.z), b.max(c.z)));
-        let (z0, z1) = inflate(z0, z1, 0);
-        let scale = corners
-            .iter()
-            .fold(0.0f64, |m, c| m.max(c.abs().max_element()));
-        let pad = (z1 - z0) * 1e-9 + scale * INFLATE_REL;
-        let (rz0, rz1) = region.depth_range();
-        ((z0 - pad).max(rz0), (z1 + pad).min(rz1))
+        pad_depth(z0, z1, corner_scale(corners), region)
     }
 
     /// The depth interval of the part of a box (`corners`, in camera
@@ -301,9 +295,7 @@ impl View {
         let mut planes: [[f64; 4]; 5] = [[0.0; 4]; 5];
         let mut n = 0;
         let margin = |v: f64| v.abs() * 1e-9 + 1e-12;
-        let scale = corners
-            .iter()
-            .fold(0.0f64, |m, c| m.max(c.abs().max_element()));
+        let scale = corner_scale(corners);
         // The side planes only where clipping by them can be trusted: its
         // vertices carry rounding at the scale of the box's corners, which
         // must stay far below the super cell's width where the box is. A
@@ -319,48 +311,39 @@ impl View {
             Region::Back => hi - lo,
         };
         let trusted = scale * CLIP_ROUNDING <= across(r.x0, r.x1).min(across(r.y0, r.y1));
-        let sides = if trusted {
-            [(0usize, r.x0, r.x1), (1, r.y0, r.y1)]
-        } else {
-            [(0, f64::NAN, f64::NAN), (1, f64::NAN, f64::NAN)]
-        };
         // A plane is used only where its distances stay finite: a super
         // cell bounded at y = −7e307 (next to a box whose front is on the
         // eye plane, projected to −∞) gave −c·z past f64's range at a
         // depth of 5, and its clipping lost a rod it holds. Leaving a
-        // plane out only widens the range.
+        // plane out only widens the range. (An infinite bound is no plane.)
         let reach = match region {
             Region::Front => depth,
             Region::Back => 1.0,
         };
-        let finite = |c: f64| (4.0 * (c.abs() * reach + scale)).is_finite();
-        for (axis, lo, hi) in sides {
-            let (lo, hi) = (
-                if finite(lo) { lo } else { f64::NAN },
-                if finite(hi) { hi } else { f64::NAN },
-            );
+        let usable = |c: f64| trusted && (4.0 * (c.abs() * reach + scale)).is_finite();
+        for (axis, lo, hi) in [(0usize, r.x0, r.x1), (1, r.y0, r.y1)] {
             let mut unit = [0.0; 4];
             unit[axis] = 1.0;
             match region {
                 // x − c·z ≥ 0 and c·z − x ≥ 0: planes through the eye.
                 Region::Front => {
-                    if lo.is_finite() {
+                    if usable(lo) {
                         let c = lo - margin(lo);
                         planes[n] = [unit[0], unit[1], -c, 0.0];
                         n += 1;
                     }
-                    if hi.is_finite() {
+                    if usable(hi) {
                         let c = hi + margin(hi);
                         planes[n] = [-unit[0], -unit[1], c, 0.0];
                         n += 1;
                     }
                 }
                 Region::Back => {
-                    if lo.is_finite() {
+                    if usable(lo) {
                         planes[n] = [unit[0], unit[1], 0.0, -(lo - margin(lo))];
                         n += 1;
                     }
-                    if hi.is_finite() {
+                    if usable(hi) {
                         planes[n] = [-unit[0], -unit[1], 0.0, hi + margin(hi)];
                         n += 1;
                     }
@@ -451,17 +434,30 @@ impl View {
             z0 = z0.min(0.0);
             z1 = z1.max(0.0);
         }
-        let (rz0, rz1) = region.depth_range();
-        let (z0, z1) = inflate(z0, z1, 0);
-        // Also by the box's own distance from the eye: a walk crosses a
-        // depth plane at a `t` rounded at the scale of its distance, not of
-        // the plane's depth. A wall 1e-7 behind the eye plane, seen from 7
-        // away in a mirror, had its cell end 1.2e-15 past it (padded by
-        // its depth alone), within a rounding of the crossing: the walk
-        // left the cell before the hit and missed the wall.
-        let pad = (z1 - z0) * 1e-9 + scale * INFLATE_REL;
-        Some(((z0 - pad).max(rz0), (z1 + pad).min(rz1)))
+        Some(pad_depth(z0, z1, scale, region))
     }
+}
+
+/// The largest camera coordinate of a box's corners.
+fn corner_scale(corners: &CamBox) -> f64 {
+    corners
+        .iter()
+        .fold(0.0f64, |m, c| m.max(c.abs().max_element()))
+}
+
+/// A box's depth interval `[z0, z1]` padded and clamped to `region`:
+/// inflated relative to itself, and also by the box's own distance from
+/// the eye (`scale`, its largest camera coordinate): a walk crosses a
+/// depth plane at a `t` rounded at the scale of its distance, not of the
+/// plane's depth. A wall 1e-7 behind the eye plane, seen from 7 away in
+/// a mirror, had its cell end 1.2e-15 past it (padded by its depth
+/// alone), within a rounding of the crossing: the walk left the cell
+/// before the hit and missed the wall.
+fn pad_depth(z0: f64, z1: f64, scale: f64, region: Region) -> (f64, f64) {
+    let (z0, z1) = inflate(z0, z1, 0);
+    let pad = (z1 - z0) * 1e-9 + scale * INFLATE_REL;
+    let (rz0, rz1) = region.depth_range();
+    ((z0 - pad).max(rz0), (z1 + pad).min(rz1))
 }
 
 /// Where the segment from `p` to `q` crosses a plane, given their signed

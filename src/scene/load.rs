@@ -1182,11 +1182,10 @@ impl<'m> Compiler<'m> {
                     ),
                 ));
             }
-        }
-        if let Some((radius, size)) = curved_size(&prim).filter(|&(_, r)| r > 0.0 && !b.is_empty())
-        {
-            let reach = b.min.abs().max(b.max.abs()).max_element();
-            if size < reach * MIN_CURVED_SIZE {
+            if let Some((radius, size)) = curved_size(&prim)
+                && size > 0.0
+                && size < reach * MIN_CURVED_SIZE
+            {
                 let world = if prim.transform.is_some() {
                     format!(" ({size:.3e} or more in the world)")
                 } else {

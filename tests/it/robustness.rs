@@ -828,27 +828,33 @@ fn a_box_around_the_camera_reaching_1e30_is_found_from_inside() {
 /// be there) renders alike with the cells and Roth at 12x9, the mutants'
 /// size, and 64x48.
 fn assert_edited_scene_renders_equal(name: &str, edits: &[(&str, &str)]) {
+    let scene = edited_small_scene(name, edits);
+    for (w, h) in [(12, 9), (64, 48)] {
+        assert_renders_equal(&scene, w, h);
+    }
+}
+
+/// `scenes/small/NAME` with each `(from, to)` edit made; each `from` must
+/// be there, or the test would no longer test what it says.
+fn edited_small_scene(name: &str, edits: &[(&str, &str)]) -> Scene {
     let text = std::fs::read_to_string(util::repo(&format!("scenes/small/{name}"))).unwrap();
     let mut edited = text.clone();
     for (from, to) in edits {
         assert!(text.contains(from), "{name} changed: no {from}");
         edited = edited.replace(from, to);
     }
-    let scene = util::scene(&edited);
-    for (w, h) in [(12, 9), (64, 48)] {
-        assert_renders_equal(&scene, w, h);
-    }
+    util::scene(&edited)
 }
 
 /// `scenes/small/behind_eye.ron` with its back wall's near face at `y`.
 fn wall_behind_eye_scene(y: &str) -> Scene {
-    let text = std::fs::read_to_string(util::repo("scenes/small/behind_eye.ron")).unwrap();
-    let wall = "Box(min: (-5.8, -7.8, -2.8), max: (5.8, 6.8, 4.8))";
-    assert!(text.contains(wall), "behind_eye.ron changed");
-    util::scene(&text.replace(
-        wall,
-        &format!("Box(min: (-5.8, {y}, -2.8), max: (5.8, 6.8, 4.8))"),
-    ))
+    edited_small_scene(
+        "behind_eye.ron",
+        &[(
+            "Box(min: (-5.8, -7.8, -2.8), max: (5.8, 6.8, 4.8))",
+            &format!("Box(min: (-5.8, {y}, -2.8), max: (5.8, 6.8, 4.8))"),
+        )],
+    )
 }
 
 /// The spans of the numbers in a scene's text (comments included: a
