@@ -145,6 +145,26 @@ impl Primitive {
         }
     }
 
+    /// The size whose rounding a hit's computed `t` carries, besides the
+    /// distance the ray travelled: `optics::offset_origin`'s `extent`, so
+    /// that a spawned ray starts as near its surface as the rounding allows.
+    ///
+    /// A box in world coordinates is met at `(face − o) / d`, a correctly
+    /// rounded difference divided once: its `t` is as exact as the distance
+    /// itself, however far the box reaches, so its size adds nothing. Every
+    /// other shape subtracts or combines magnitudes of its own size (a
+    /// sphere's centre and radius, an axis's ends, a polygon's vertices, an
+    /// object-space box under its map), which its world extent bounds.
+    /// Before this, a ground box reaching 1e20 pushed every shadow ray from
+    /// it 1.4e6 up, over whatever should have shadowed it
+    /// (`docs/robustness.md`, "Spawned rays of a box reaching 1e20").
+    pub fn rounding_size(&self) -> f64 {
+        match (&self.shape, &self.transform) {
+            (Shape::Box { .. }, None) => 0.0,
+            _ => (self.bounds.max - self.bounds.min).max_element(),
+        }
+    }
+
     /// Whether a ray that starts on this primitive's surface and moves off
     /// it, to the side its normal points to (`outward`) or to the other,
     /// can never meet it again, so that the ray's queries may leave it out

@@ -11,7 +11,7 @@
 //! runs over a few variants of its numbers, since the class matters and
 //! not the one number in the catalogue.
 
-use hypercast::csg::{PrimHits, PrimId, Shape};
+use hypercast::csg::{PrimHits, PrimId, Primitive, Shape};
 use hypercast::geom::{Ray, Vec3};
 use hypercast::reference::RothTracer;
 use hypercast::scene::Scene;
@@ -719,11 +719,19 @@ fn the_stiff_scenes_on_the_machine_give_the_single_node_image() {
 /// moved 1e8 (at 1e30, 1e18) past the camera, and the crossings of its
 /// edges with the eye plane, between two far corners, came out some 100
 /// units off (`Aabb::inflated_each`, `projection::plane_crossing`).
+///
+/// And it shades as a ground reaching 1e4 does, bit for bit (beyond the
+/// horizon of a 64x48 picture either way): rays spawned on it start by the
+/// rounding of their own hit, not of the box's size, which pushed them 1.4e6
+/// up at 1e20, over the ball whose shadow then vanished
+/// (`Primitive::rounding_size`).
 #[test]
 fn a_ground_reaching_1e50_away_is_found_near_the_camera() {
+    let (near, _) = assert_renders_equal(&far_ground_scene(1e4), 64, 48);
     for far in [1e20, 1e30, 1e50] {
         let scene = far_ground_scene(far);
         let (film, _) = assert_renders_equal(&scene, 64, 48);
+        assert_same_picture(&film, &near, &format!("the ground reaching {far:e}"));
         // The floor fills the bottom row.
         let bottom = &film.sums()[64 * 47..];
         assert!(
@@ -1062,8 +1070,8 @@ fn case_24_spawned_rays_never_hit_the_surface_they_leave() {
             let p = ray.at(hit.t);
             let n = prim.normal(&ray, hit.t, hit.part);
             assert!(hit.t.is_finite() && n.is_finite(), "{hit:?} {n}");
-            let out = offset_origin(&ray, hit.t, p, n, size);
-            let inside = offset_origin(&ray, hit.t, p, -n, size);
+            let out = offset_origin(&ray, hit.t, p, n, prim.rounding_size());
+            let inside = offset_origin(&ray, hit.t, p, -n, prim.rounding_size());
             for _ in 0..1000 {
                 let d = rng.direction();
                 let (o, d) = if d.dot(n) > 0.0 { (out, d) } else { (out, -d) };
@@ -1119,20 +1127,22 @@ fn case_24_spawned_rays_never_hit_the_surface_they_leave() {
 /// Spawns `per_side` rays in random directions from the hit at `t` of
 /// `ray` (normal `n`), offset to each side of the surface as the shader
 /// offsets them, the primitive not left out; returns how many it spawned
-/// and how many met a surface within 1e-9 of `size` of their start.
+/// and how many met a surface within 1e-9 of the size of `prim` (the
+/// primitive hit, whose `rounding_size` the offset takes) of their start.
 fn spawn_around(
     roth: &mut RothTracer,
+    prim: &Primitive,
     ray: &Ray,
     t: f64,
     n: Vec3,
-    size: f64,
     per_side: usize,
     rng: &mut Rng,
 ) -> (usize, usize) {
     let (mut spawned, mut self_hits) = (0, 0);
+    let size = (prim.bounds.max - prim.bounds.min).max_element();
     roth.leaving(None);
     for side in [n, -n] {
-        let o = offset_origin(ray, t, ray.at(t), side, size);
+        let o = offset_origin(ray, t, ray.at(t), side, prim.rounding_size());
         for _ in 0..per_side {
             let mut d = rng.direction();
             if d.dot(side) < 0.0 {
@@ -1230,7 +1240,7 @@ fn case_24_spawned_rays_miss_the_surface_they_leave_on_every_shape() {
                     continue;
                 };
                 let n = prim.normal(&ray, hit.t, hit.part);
-                let (made, met) = spawn_around(&mut roth, &ray, hit.t, n, size, 50, &mut rng);
+                let (made, met) = spawn_around(&mut roth, prim, &ray, hit.t, n, 50, &mut rng);
                 (spawned, self_hits) = (spawned + made, self_hits + met);
             }
         }
@@ -1296,7 +1306,7 @@ fn case_24_rays_leaving_a_thin_cone_never_meet_it_at_their_start() {
             // out: the first crossing ahead is the far side, never the
             // point they start at.
             let n = prim.normal(&job.ray, hit.t, hit.part);
-            let (made, met) = spawn_around(&mut roth, &job.ray, hit.t, n, size, 4, &mut rng);
+            let (made, met) = spawn_around(&mut roth, prim, &job.ray, hit.t, n, 4, &mut rng);
             (spawned, self_hits) = (spawned + made, self_hits + met);
             // The shader's shadow rays, the spike left out.
             let mut jobs = Vec::new();
