@@ -657,14 +657,12 @@ enum Side {
 }
 
 /// Whether `p` surely lies outside the scene's solid: by the tree, three
-/// ways (`Side`), each primitive classified by its crossings with a ray
-/// from `p` (all solid primitives are convex: `p` is inside when the ray
-/// leaves it ahead and entered behind), and every primitive whose minimal
-/// box (inflated) does not hold `p` outside, as Algorithm 1 lets it be
+/// ways (`Side`), each primitive classified by its crossings with lines
+/// through `p` (`leaf_side`), and every primitive whose minimal box
+/// (inflated) does not hold `p` outside, as Algorithm 1 lets it be
 /// wherever it cannot change the solid. Within a millionth of the scene's
 /// size of a surface, a primitive is `Near` and decides nothing.
 fn outside_the_solid(scene: &Scene, minimal: &[Aabb], p: crate::geom::Vec3) -> bool {
-    use crate::csg::PrimHits;
     let tree = &scene.tree;
     let Some(root) = tree.root else {
         return true;
@@ -674,13 +672,6 @@ fn outside_the_solid(scene: &Scene, minimal: &[Aabb], p: crate::geom::Vec3) -> b
     if !size.is_finite() || size <= 0.0 {
         return !all.inflated(1e-9).contains(p);
     }
-    // An arbitrary direction, off the axes, of the scene's size: `t` is
-    // then a fraction of it.
-    let ray = crate::geom::Ray::new(
-        p,
-        crate::geom::Vec3::new(0.8017, 0.4631, 0.3779).normalize() * size,
-    );
-    let m = 1e-6;
     let mut side = vec![Side::Out; tree.nodes.len()];
     for (i, n) in tree.nodes.iter().enumerate() {
         side[i] = match *n {
@@ -688,25 +679,7 @@ fn outside_the_solid(scene: &Scene, minimal: &[Aabb], p: crate::geom::Vec3) -> b
                 if !minimal[i].inflated(1e-9).contains(p) {
                     Side::Out
                 } else {
-                    match scene.primitives[q.index()].intersect(&ray) {
-                        PrimHits::Miss => Side::Out,
-                        PrimHits::Solid { enter, exit } => {
-                            if enter.t < -m && exit.t > m {
-                                Side::In
-                            } else if enter.t > m || exit.t < -m {
-                                Side::Out
-                            } else {
-                                Side::Near
-                            }
-                        }
-                        PrimHits::Sheet { hits, count } => {
-                            if hits[..count as usize].iter().any(|c| c.t.abs() <= m) {
-                                Side::Near
-                            } else {
-                                Side::Out
-                            }
-                        }
-                    }
+                    leaf_side(&scene.primitives[q.index()], p, size)
                 }
             }
             CsgNode::Op { op, .. } => {
@@ -747,6 +720,79 @@ fn outside_the_solid(scene: &Scene, minimal: &[Aabb], p: crate::geom::Vec3) -> b
         };
     }
     side[root.index()] == Side::Out
+}
+
+/// Where `p` lies against one primitive, by its crossings with lines
+/// through `p` of the scene's length `size` (`t` is then a fraction of it):
+/// `In` where a line in an arbitrary direction, off the axes, leaves it
+/// ahead and entered behind, both by more than a millionth (every solid
+/// primitive is convex); `Near` where a crossing of any line comes within
+/// that of `p`; `Out` only where every line says so.
+///
+/// One line is not enough for `Out`: a line through a point on an edge or
+/// a corner may touch the solid there alone, and miss it (seed 24886 of
+/// the scene mutants: a light on a box's edge was taken for outside, and
+/// shadow rays from inside the box were stopped where Roth finds no
+/// surface before the light). A line through an edge of a box enters it
+/// where its direction `d` has `(d·n₁)(d·n₂) > 0`, `n₁` and `n₂` the two
+/// faces' normals; over the three axes and the four diagonals these
+/// products sum to multiples of `n₁·n₂ = 0` and are not all zero, so one
+/// of them enters. The same holds at a cylinder's rims, and in a
+/// transformed box's own space, whose directions are mapped to the world
+/// here; a cone's apex is met along its axis. Those lines only ever make
+/// a primitive `Near`, never `In`: the axes lie in a box's faces, where a
+/// chord through a point of the face holds it without the point being
+/// inside.
+fn leaf_side(prim: &crate::csg::Primitive, p: crate::geom::Vec3, size: f64) -> Side {
+    use crate::csg::{PrimHits, Shape};
+    use crate::geom::{Ray, Vec3};
+    let m = 1e-6;
+    let side = |d: Vec3| -> Side {
+        match prim.intersect(&Ray::new(p, d)) {
+            PrimHits::Miss => Side::Out,
+            PrimHits::Solid { enter, exit } => {
+                if enter.t < -m && exit.t > m {
+                    Side::In
+                } else if enter.t > m || exit.t < -m {
+                    Side::Out
+                } else {
+                    Side::Near
+                }
+            }
+            PrimHits::Sheet { hits, count } => {
+                if hits[..count as usize].iter().any(|c| c.t.abs() <= m) {
+                    Side::Near
+                } else {
+                    Side::Out
+                }
+            }
+        }
+    };
+    let first = side(Vec3::new(0.8017, 0.4631, 0.3779).normalize() * size);
+    if first != Side::Out {
+        return first;
+    }
+    let axis = match &prim.shape {
+        Shape::Cylinder { base, top, .. } | Shape::Cone { base, top, .. } => Some(*top - *base),
+        _ => None,
+    };
+    let object = [
+        Vec3::X,
+        Vec3::Y,
+        Vec3::Z,
+        Vec3::new(1.0, 1.0, 1.0),
+        Vec3::new(1.0, 1.0, -1.0),
+        Vec3::new(1.0, -1.0, 1.0),
+        Vec3::new(-1.0, 1.0, 1.0),
+    ];
+    for d in object.into_iter().chain(axis) {
+        let d = prim.transform.as_ref().map_or(d, |t| t.vector(d));
+        let d = d.normalize_or_zero() * size;
+        if !d.is_finite() || d == Vec3::ZERO || side(d) != Side::Out {
+            return Side::Near;
+        }
+    }
+    Side::Out
 }
 
 impl ShadowFacts {

@@ -309,6 +309,26 @@ impl Tracer for Compare<'_> {
         }
         a
     }
+
+    /// A shadow ray's answer is whether something blocks it: each tracer
+    /// may stop at another blocker (`CellTracer::walk_shadow`).
+    fn shadow(&mut self, ray: &Ray, t_min: f64, t_max: f64) -> Option<Hit> {
+        let a = self.roth.shadow(ray, t_min, t_max);
+        let b = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            self.cells.shadow(ray, t_min, t_max)
+        }))
+        .map(|b| b.is_some())
+        .map_err(|_| "a panic");
+        if b != Ok(a.is_some()) {
+            self.diffs.lock().unwrap().push(format!(
+                "shadow ray origin {:?} dir {:?} in ({t_min:e}, {t_max:e}) leaving {:?}: roth {a:?}, cells blocked {b:?}",
+                ray.origin.to_array(),
+                ray.dir.to_array(),
+                self.leaving,
+            ));
+        }
+        a
+    }
 }
 
 /// Where cells and Roth disagree: primary rays wrongly skipped as

@@ -832,6 +832,27 @@ fn a_box_around_the_camera_reaching_1e30_is_found_from_inside() {
     }
 }
 
+/// A light on an edge or at a corner of a box that holds the camera: the
+/// shadow rays from inside the box reach it without crossing a surface,
+/// and the cells must not take the light for outside the solid and stop
+/// them (`cells::leaf_side`). Found by the mutants (seed 24886 of a longer
+/// run, the box reaching 1e50): one line through the light touched the box
+/// at its edge alone, and 427 shadow rays of a 12x9 render were stopped.
+#[test]
+fn a_light_on_the_edge_of_a_box_holding_the_camera_is_not_outside_it() {
+    let mirror = "Box(min: (-2.1, -3, 0), max: (-2, 3, 3)";
+    let around = "Box(min: (-2.1, -3, 0), max: (4, 3, 3)";
+    for light in ["(0, -3, 3)", "(4, -3, 3)", "(4, 3, 0)"] {
+        assert_edited_scene_renders_equal(
+            "mirror.ron",
+            &[
+                (mirror, around),
+                ("(position: (0, -3, 4))", &format!("(position: {light})")),
+            ],
+        );
+    }
+}
+
 /// `scenes/small/NAME` with each `(from, to)` edit made (each `from` must
 /// be there) renders alike with the cells and Roth at 12x9, the mutants'
 /// size, and 64x48.
