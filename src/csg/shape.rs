@@ -146,21 +146,29 @@ impl Primitive {
     }
 
     /// The size whose rounding a hit's computed `t` carries, besides the
-    /// distance the ray travelled: `optics::offset_origin`'s `extent`, so
-    /// that a spawned ray starts as near its surface as the rounding allows.
+    /// distance the ray travelled: `optics::offset_origin`'s `extent` for a
+    /// hit at `p`, so that a spawned ray starts as near its surface as the
+    /// rounding allows.
     ///
     /// A box in world coordinates is met at `(face − o) / d`, a correctly
     /// rounded difference divided once: its `t` is as exact as the distance
-    /// itself, however far the box reaches, so its size adds nothing. Every
-    /// other shape subtracts or combines magnitudes of its own size (a
-    /// sphere's centre and radius, an axis's ends, a polygon's vertices, an
-    /// object-space box under its map), which its world extent bounds.
+    /// itself, however far the box reaches, so its size adds nothing. A box
+    /// under a map is met so in its own space, after the ray's origin is
+    /// mapped there, `M⁻¹·(o − T)`: that costs its face coordinate some
+    /// 4 ε·‖row of M⁻¹‖₁·|o − T|, which is 4√3 ε·|o − T| across the face in
+    /// the world, whatever the map's scales; `|o − T|` is at most
+    /// `|p − T|` and the distance, so `|p − T|` covers it five times over.
+    /// Every other shape subtracts or combines magnitudes of its own size
+    /// (a sphere's centre and radius, an axis's ends, a polygon's
+    /// vertices), which its world extent bounds.
+    ///
     /// Before this, a ground box reaching 1e20 pushed every shadow ray from
     /// it 1.4e6 up, over whatever should have shadowed it
     /// (`docs/robustness.md`, "Spawned rays of a box reaching 1e20").
-    pub fn rounding_size(&self) -> f64 {
+    pub fn rounding_size(&self, p: Vec3) -> f64 {
         match (&self.shape, &self.transform) {
             (Shape::Box { .. }, None) => 0.0,
+            (Shape::Box { .. }, Some(m)) => (p - m.translation).abs().max_element(),
             _ => (self.bounds.max - self.bounds.min).max_element(),
         }
     }

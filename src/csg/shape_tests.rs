@@ -1599,7 +1599,8 @@ fn rays_leaving_a_surface_to_the_allowed_side_never_meet_it_again() {
                         if !p.left_behind(side == n) {
                             continue;
                         }
-                        let o = crate::trace::offset_origin(&ray, c.t, at, side, p.rounding_size());
+                        let o =
+                            crate::trace::offset_origin(&ray, c.t, at, side, p.rounding_size(at));
                         for _ in 0..40 {
                             let mut d = rng.vec(-1.0, 1.0).normalize_or(side);
                             if d.dot(side) < 0.0 {

@@ -832,6 +832,30 @@ fn a_box_around_the_camera_reaching_1e30_is_found_from_inside() {
     }
 }
 
+/// A rotated post reaching 1e30 up, in the ball's shadow, shades exactly as
+/// one reaching 1e4 (both beyond the picture's top). Rays spawned on it
+/// start by the rounding of mapping their origin into its space, not by
+/// its size, which pushed them 1.4e16 off (`Primitive::rounding_size`;
+/// mutant seeds 4663 and 18369 of a longer run, a post and a chair's leg
+/// of `house.ron`).
+#[test]
+fn a_rotated_post_reaching_1e30_shades_as_one_reaching_1e4() {
+    let floor = "Box(min: (-4, -6, -0.1), max: (4, 4, 0), material: \"floor\"),";
+    let post = |top: &str| {
+        format!(
+            "{floor} Transform(rotate: (0, 0, 30), translate: (0, 1.3, 0), \
+             child: Box(min: (-0.07, -0.07, 0), max: (0.07, 0.07, {top}))),"
+        )
+    };
+    let near = edited_small_scene("mirror.ron", &[(floor, &post("1e4"))]);
+    let (near, _) = assert_renders_equal(&near, 64, 48);
+    for top in ["1e20", "1e30"] {
+        let scene = edited_small_scene("mirror.ron", &[(floor, &post(top))]);
+        let (film, _) = assert_renders_equal(&scene, 64, 48);
+        assert_same_picture(&film, &near, &format!("the post reaching {top}"));
+    }
+}
+
 /// A light on an edge or at a corner of a box that holds the camera: the
 /// shadow rays from inside the box reach it without crossing a surface,
 /// and the cells must not take the light for outside the solid and stop
@@ -1091,8 +1115,8 @@ fn case_24_spawned_rays_never_hit_the_surface_they_leave() {
             let p = ray.at(hit.t);
             let n = prim.normal(&ray, hit.t, hit.part);
             assert!(hit.t.is_finite() && n.is_finite(), "{hit:?} {n}");
-            let out = offset_origin(&ray, hit.t, p, n, prim.rounding_size());
-            let inside = offset_origin(&ray, hit.t, p, -n, prim.rounding_size());
+            let out = offset_origin(&ray, hit.t, p, n, prim.rounding_size(p));
+            let inside = offset_origin(&ray, hit.t, p, -n, prim.rounding_size(p));
             for _ in 0..1000 {
                 let d = rng.direction();
                 let (o, d) = if d.dot(n) > 0.0 { (out, d) } else { (out, -d) };
@@ -1163,7 +1187,7 @@ fn spawn_around(
     let size = (prim.bounds.max - prim.bounds.min).max_element();
     roth.leaving(None);
     for side in [n, -n] {
-        let o = offset_origin(ray, t, ray.at(t), side, prim.rounding_size());
+        let o = offset_origin(ray, t, ray.at(t), side, prim.rounding_size(ray.at(t)));
         for _ in 0..per_side {
             let mut d = rng.direction();
             if d.dot(side) < 0.0 {
