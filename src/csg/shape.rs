@@ -157,7 +157,7 @@ impl Primitive {
     /// mapped there, `M⁻¹·(o − T)`: that costs its face coordinate some
     /// 4 ε·‖row of M⁻¹‖₁·|o − T|, which is 4√3 ε·|o − T| across the face in
     /// the world, whatever the map's scales; `|o − T|` is at most
-    /// `|p − T|` and the distance, so `|p − T|` covers it five times over.
+    /// `|p − T|` and the distance, so `|p − T|` covers it nine times over.
     /// Every other shape subtracts or combines magnitudes of its own size
     /// (a sphere's centre and radius, an axis's ends, a polygon's
     /// vertices), which its world extent bounds.
