@@ -132,14 +132,8 @@ impl View {
         }
         let corners = b.corners().map(|c| self.point(c));
         if self.eye_at_boundary(b) {
-            let all = Rect {
-                x0: f64::NEG_INFINITY,
-                x1: f64::INFINITY,
-                y0: f64::NEG_INFINITY,
-                y1: f64::INFINITY,
-            };
             let (z0, z1) = View::depth_range_whole(&corners, region);
-            return Some((all, z0, z1));
+            return Some((Rect::PLANE, z0, z1));
         }
         let keep = |z: f64| match region {
             Region::Front => z >= 0.0,
