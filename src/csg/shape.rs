@@ -158,16 +158,21 @@ impl Primitive {
     /// 4 ε·‖row of M⁻¹‖₁·|o − T|, which is 4√3 ε·|o − T| across the face in
     /// the world, whatever the map's scales; `|o − T|` is at most
     /// `|p − T|` and the distance, so `|p − T|` covers it nine times over.
-    /// Every other shape subtracts or combines magnitudes of its own size
-    /// (a sphere's centre and radius, an axis's ends, a polygon's
-    /// vertices), which its world extent bounds.
+    /// A triangle or polygon lying in a coordinate plane is met as a box's
+    /// face is (`on_coordinate_plane`): size 0 too. Every other shape
+    /// subtracts or combines magnitudes of its own size (a sphere's centre
+    /// and radius, an axis's ends, a tilted polygon's vertices), which its
+    /// world extent bounds.
     ///
     /// Before this, a ground box reaching 1e20 pushed every shadow ray from
     /// it 1.4e6 up, over whatever should have shadowed it
-    /// (`docs/robustness.md`, "Spawned rays of a box reaching 1e20").
+    /// (`docs/robustness.md`, "Spawned rays of a box reaching 1e20"), and
+    /// so did a ground polygon ("A ground polygon reaching 1e20").
     pub fn rounding_size(&self, p: Vec3) -> f64 {
         match (&self.shape, &self.transform) {
             (Shape::Box { .. }, None) => 0.0,
+            (Shape::Triangle { a, b, c }, None) if coordinate_plane(&[*a, *b, *c]).is_some() => 0.0,
+            (Shape::Polygon(poly), None) if coordinate_plane(&poly.vertices).is_some() => 0.0,
             (Shape::Box { .. }, Some(m)) => (p - m.translation).abs().max_element(),
             _ => (self.bounds.max - self.bounds.min).max_element(),
         }
@@ -735,10 +740,55 @@ fn intersect_shape(shape: &Shape, ray: &Ray) -> PrimHits {
             }
         }
         Shape::Triangle { a, b, c } => match Shear::new(ray).and_then(|s| s.triangle(*a, *b, *c)) {
-            Some(t) => sheet(Some(crossing(t, 0)), None),
+            Some(t) => {
+                let t = on_coordinate_plane(ray, &[*a, *b, *c], t);
+                sheet(Some(crossing(t, 0)), None)
+            }
             None => PrimHits::Miss,
         },
         Shape::Polygon(p) => polygon_hits(ray, p),
+    }
+}
+
+/// The axis and coordinate of the coordinate plane every vertex lies in
+/// exactly, if any (a ground polygon at `z = 0`, a wall at `x = 4`).
+#[inline]
+fn coordinate_plane(vertices: &[Vec3]) -> Option<(usize, f64)> {
+    let (first, rest) = vertices.split_first()?;
+    (0..3)
+        .find(|&k| rest.iter().all(|v| v[k] == first[k]))
+        .map(|k| (k, first[k]))
+}
+
+/// The `t` of a planar primitive's hit, which the triangle test found at
+/// `t_fan`, taken as a box's face is met, `(c − o)/d` on the axis of the
+/// coordinate plane it lies in, if it lies in one.
+///
+/// Why: the triangle test weighs the vertices' depths along the ray by
+/// barycentric-like edge functions, which cancel to the hit's distance
+/// with an error of ε times the vertices' reach. A ground of ±1e20 met by
+/// a grazing ray was found some 1e4 off along the ray, and its spawned
+/// rays had to start 1.4e6 off the ground (`Primitive::rounding_size`),
+/// over the shadows on it (`docs/robustness.md`, "A ground polygon
+/// reaching 1e20"). pbrt-v4 takes the point from the barycentrics
+/// instead; on a coordinate plane this is simpler and exact: one
+/// correctly rounded difference divided once, as accurate as the distance,
+/// whatever the polygon's size. The plane's `t` has the exact sign of the
+/// line's crossing with that plane; where rounding made the triangle test
+/// report a hit that crossing contradicts (`t_fan ≤ 0` but the plane ahead,
+/// a ray grazing a polygon wholly behind it), `t_fan` is kept, which keeps
+/// `polygon_behind`'s promise (`t ≤ 0`). Whether the ray hits is the
+/// triangle test's alone, so edges stay watertight.
+#[inline]
+fn on_coordinate_plane(ray: &Ray, vertices: &[Vec3], t_fan: f64) -> f64 {
+    let Some((k, c)) = coordinate_plane(vertices) else {
+        return t_fan;
+    };
+    let t = (c - ray.origin[k]) / ray.dir[k];
+    if t.is_finite() && (t <= 0.0 || t_fan > 0.0) {
+        t
+    } else {
+        t_fan
     }
 }
 
@@ -1268,6 +1318,7 @@ fn polygon_hits(ray: &Ray, p: &Polygon) -> PrimHits {
             shear.triangle(*a, *b, *c)
         };
         if let Some(t) = hit {
+            let t = on_coordinate_plane(ray, &p.vertices, t);
             return sheet(Some(crossing(t, 0)), None);
         }
     }

@@ -741,8 +741,54 @@ fn a_ground_reaching_1e50_away_is_found_near_the_camera() {
     }
 }
 
+/// The same ground as a polygon and as two triangles at `z = 0`, reaching
+/// 1e20, 1e30 and 1e50 away in x and y (a polygon that long in one
+/// direction alone is refused as of zero area): the same picture as at 1e4, the ball's shadow
+/// on it included. The triangle test found such a ground's hits some 1e4
+/// off along grazing rays (its vertices' depths, ±1e20, cancel), and its
+/// spawned rays started 1.4e6 above it: the shadow was gone. A polygon in
+/// a coordinate plane is now met as a box's face is
+/// (`shape::on_coordinate_plane`).
+#[test]
+fn a_ground_polygon_reaching_1e50_away_shades_as_one_reaching_1e4() {
+    for (kind, ground) in [
+        ("polygon", polygon_ground as fn(f64) -> String),
+        ("triangles", triangle_ground),
+    ] {
+        let scene = |far: f64| far_ground_scene_with(&ground(far));
+        let (near, _) = assert_renders_equal(&scene(1e4), 64, 48);
+        for far in [1e20, 1e30, 1e50] {
+            let (film, _) = assert_renders_equal(&scene(far), 64, 48);
+            assert_same_picture(&film, &near, &format!("the {kind} reaching {far:e}"));
+        }
+    }
+}
+
+fn polygon_ground(far: f64) -> String {
+    format!(
+        "Polygon(vertices: [({x:?}, {x:?}, 0), (4, {x:?}, 0), (4, 4, 0), ({x:?}, 4, 0)]),",
+        x = -far
+    )
+}
+
+fn triangle_ground(far: f64) -> String {
+    format!(
+        "Triangle(a: ({x:?}, {x:?}, 0), b: (4, {x:?}, 0), c: (4, 4, 0)),
+         Triangle(a: ({x:?}, {x:?}, 0), b: (4, 4, 0), c: ({x:?}, 4, 0)),",
+        x = -far
+    )
+}
+
 /// Two mirrors and a ball on a ground box reaching to `-far` in x.
 fn far_ground_scene(far: f64) -> Scene {
+    far_ground_scene_with(&format!(
+        "Box(min: ({x:?}, -6, -0.1), max: (4, 4, 0)),",
+        x = -far
+    ))
+}
+
+/// Two mirrors and a ball on `ground`.
+fn far_ground_scene_with(ground: &str) -> Scene {
     util::scene(&format!(
         "(camera: (eye: (1.6, -2.5, 1.3), look_at: (-2, 0.4, 0.8), fov_y: 50, width: 64, height: 48),
           background: (0.2, 0.25, 0.35), max_depth: 10,
@@ -755,9 +801,8 @@ fn far_ground_scene(far: f64) -> Scene {
             Box(min: (-2.1, -3, 0), max: (-2, 3, 3), material: \"mirror\"),
             Box(min: (2, -3, 0), max: (2.1, 3, 3), material: \"mirror\"),
             Sphere(center: (0, 0.5, 0.6), radius: 0.6, material: \"red\"),
-            Box(min: ({x:?}, -6, -0.1), max: (4, 4, 0)),
-          ])",
-        x = -far
+            {ground}
+          ])"
     ))
 }
 
