@@ -329,6 +329,11 @@ struct Node<'a> {
     /// Host seconds spent, in the current slice, on the emulation's own
     /// work (encoding messages), which the clock does not charge.
     excluded: f64,
+    /// While a unit of work runs (`work_for_a_while`): the host time and
+    /// `excluded` up to which its computing is on the clock already, and
+    /// the virtual seconds charged in it so far (`catch_up`).
+    unit: Option<(Instant, f64)>,
+    unit_charged: f64,
     /// The slices since the node's CPU time was last read, if any.
     cpu_window: Option<CpuWindow>,
     /// Per link, the envelope of messages waiting to go (`codec`).
@@ -409,6 +414,8 @@ impl<'a> Node<'a> {
             done_urgent: None,
             host_flushed: Instant::now(),
             excluded: 0.0,
+            unit: None,
+            unit_charged: 0.0,
             cpu_window: None,
             heard: vec![0.0; d],
             announced: 0.0,
@@ -623,18 +630,28 @@ impl<'a> Node<'a> {
         self.excluded = 0.0;
         loop {
             let before = self.clock;
-            let excluded = self.excluded;
-            if !self.work_a_little()? {
+            self.unit = Some((t0, self.excluded));
+            self.unit_charged = 0.0;
+            let worked_now = self.work_a_little();
+            let (t_mark, excluded) = self.unit.take().ok_or("a unit's start vanished")?;
+            estimated += self.unit_charged;
+            if !worked_now? {
+                // Finding nothing to do is not work: the modelled node
+                // idles. (Counted, its CPU time came out as busy with no
+                // clock time for it, and a node's busy time could pass the
+                // run's end.)
+                self.excluded = excluded + (Instant::now() - t_mark).as_secs_f64();
                 break;
             }
             worked = true;
             // The unit may have jumped the clock to an arrival, or paid a
-            // send: a floor the correction below must not undercut.
-            if self.clock > before {
+            // send (stamped at the clock, its computing so far included):
+            // a floor the correction below must not undercut.
+            if self.clock - self.unit_charged > before {
                 window.floor = window.floor.max(self.clock);
             }
             let t1 = Instant::now();
-            let unit = (t1 - t0).as_secs_f64() - (self.excluded - excluded);
+            let unit = (t1 - t_mark).as_secs_f64() - (self.excluded - excluded);
             t0 = t1;
             let dt = unit.max(0.0) / speed;
             self.clock += dt;
@@ -1178,9 +1195,28 @@ impl<'a> Node<'a> {
         self.enqueue(i, body)
     }
 
+    /// Puts the computing the running unit of work has done so far on the
+    /// clock, so that a message sent from within the unit (a finished
+    /// sample's record, a batch of paths) is stamped when it is sent, not
+    /// when the unit began. Before this, a path's records left at its
+    /// unit's start, up to a unit's work early: the host could end the run
+    /// before the node had computed them, and `scale`'s utilisation came
+    /// out above 1 on small renders (`work_for_a_while`).
+    fn catch_up(&mut self) {
+        if let Some((t0, excluded)) = self.unit {
+            let now = Instant::now();
+            let done = (now - t0).as_secs_f64() - (self.excluded - excluded);
+            let dt = done.max(0.0) / self.model.compute_speed;
+            self.clock += dt;
+            self.unit_charged += dt;
+            self.unit = Some((now, self.excluded));
+        }
+    }
+
     /// Stamps, encodes and queues a message on link `i`; the clock pays
     /// its sending cost.
     fn enqueue<T: serde::Serialize>(&mut self, i: usize, body: &T) -> Result<(), NodeError> {
+        self.catch_up();
         let len = self.excluding(|n| {
             let (model, clock) = (n.model, &mut n.clock);
             append_stamped(&mut n.waiting[i], body, |len| {
