@@ -334,6 +334,9 @@ struct Node<'a> {
     /// the virtual seconds charged in it so far (`catch_up`).
     unit: Option<(Instant, f64)>,
     unit_charged: f64,
+    /// The outermost `excluding` block running, if any: when it began, and
+    /// `excluded` then.
+    exclusion: Option<(Instant, f64)>,
     /// The slices since the node's CPU time was last read, if any.
     cpu_window: Option<CpuWindow>,
     /// Per link, the envelope of messages waiting to go (`codec`).
@@ -416,6 +419,7 @@ impl<'a> Node<'a> {
             excluded: 0.0,
             unit: None,
             unit_charged: 0.0,
+            exclusion: None,
             cpu_window: None,
             heard: vec![0.0; d],
             announced: 0.0,
@@ -681,7 +685,12 @@ impl<'a> Node<'a> {
     /// not added again.
     fn excluding<R>(&mut self, f: impl FnOnce(&mut Self) -> R) -> R {
         let (t0, before) = (Instant::now(), self.excluded);
+        let outer = self.exclusion;
+        if outer.is_none() {
+            self.exclusion = Some((t0, before));
+        }
         let r = f(self);
+        self.exclusion = outer;
         self.excluded = before + t0.elapsed().as_secs_f64();
         r
     }
@@ -1202,14 +1211,21 @@ impl<'a> Node<'a> {
     /// unit's start, up to a unit's work early: the host could end the run
     /// before the node had computed them, and `scale`'s utilisation came
     /// out above 1 on small renders (`work_for_a_while`).
+    ///
+    /// Within the emulation's own work (`excluding`, as when a forwarded
+    /// path fills a batch), the computing ends where that work began: the
+    /// unit's accounting resumes from there, and the block's time is taken
+    /// off when it ends.
     fn catch_up(&mut self) {
         if let Some((t0, excluded)) = self.unit {
-            let now = Instant::now();
-            let done = (now - t0).as_secs_f64() - (self.excluded - excluded);
+            let (cut, cut_excluded) = self
+                .exclusion
+                .unwrap_or_else(|| (Instant::now(), self.excluded));
+            let done = cut.saturating_duration_since(t0).as_secs_f64() - (cut_excluded - excluded);
             let dt = done.max(0.0) / self.model.compute_speed;
             self.clock += dt;
             self.unit_charged += dt;
-            self.unit = Some((now, self.excluded));
+            self.unit = Some((cut, cut_excluded));
         }
     }
 
