@@ -613,21 +613,28 @@ impl<'a> Node<'a> {
     /// errs on the slow side.)
     fn work_for_a_while(&mut self) -> Result<bool, NodeError> {
         let speed = self.model.compute_speed;
-        let start = Instant::now();
-        let mut window = match self.cpu_window.take() {
-            Some(w) if start - w.slice_end < CPU_WINDOW => w,
+        let now = Instant::now();
+        let (mut window, start) = match self.cpu_window.take() {
+            Some(w) if now - w.slice_end < CPU_WINDOW => (w, now),
             // Long enough since the last slice that the thread may have
             // been descheduled: settled now, with that time charged (as
             // the CPU time it was, some microseconds of emulation), so
             // that no wait is taken off the node's CPU time.
             Some(w) => {
-                let cpu = self.settle(w, start);
-                CpuWindow::open(cpu, self.clock, start)
+                let (cpu, at) = self.settle(w);
+                (CpuWindow::open(cpu, self.clock, at), Instant::now())
             }
-            None => CpuWindow::open(cpu_seconds(), self.clock, start),
+            // Host time from before the reading: a window's CPU time must
+            // lie within its host time (`settle`).
+            None => (
+                CpuWindow::open(cpu_seconds(), self.clock, now),
+                Instant::now(),
+            ),
         };
         // Since the last slice: decoding and sending, the emulation's.
-        window.excluded += (start - window.slice_end).as_secs_f64();
+        window.excluded += start
+            .saturating_duration_since(window.slice_end)
+            .as_secs_f64();
         let mut t0 = start;
         let mut estimated = 0.0;
         let mut worked = false;
@@ -644,7 +651,8 @@ impl<'a> Node<'a> {
                 // idles. (Counted, its CPU time came out as busy with no
                 // clock time for it, and a node's busy time could pass the
                 // run's end.)
-                self.excluded = excluded + (Instant::now() - t_mark).as_secs_f64();
+                t0 = Instant::now();
+                self.excluded = excluded + (t0 - t_mark).as_secs_f64();
                 break;
             }
             worked = true;
@@ -664,14 +672,17 @@ impl<'a> Node<'a> {
                 break;
             }
         }
-        let end = Instant::now();
+        // The slice ends where its last unit did: what follows (sending,
+        // receiving) is the emulation's, left to the next slice's gap or
+        // the window's tail.
+        let end = t0;
         window.estimated += estimated;
         window.excluded += self.excluded;
         window.slice_end = end;
         self.cpu_window = Some(if end - window.opened >= CPU_WINDOW {
             // One reading closes this window and opens the next.
-            let cpu = self.settle(window, end);
-            CpuWindow::open(cpu, self.clock, end)
+            let (cpu, at) = self.settle(window);
+            CpuWindow::open(cpu, self.clock, at)
         } else {
             window
         });
@@ -699,17 +710,25 @@ impl<'a> Node<'a> {
     /// counted as work (`work_for_a_while`).
     fn close_cpu_window(&mut self) {
         if let Some(w) = self.cpu_window.take() {
-            self.settle(w, Instant::now());
+            self.settle(w);
         }
     }
 
     /// Reads the CPU time and puts what the window's work cost in place of
-    /// its estimates; the time since its last slice (`now` less
-    /// `slice_end`) was the emulation's, unless it was long enough to hide
-    /// a wait. Returns the reading.
-    fn settle(&mut self, w: CpuWindow, now: Instant) -> f64 {
+    /// its estimates; the time since its last slice (until after the
+    /// reading) was the emulation's, unless it was long enough to hide a
+    /// wait. Returns the reading and the host time just before it, where
+    /// the next window may start.
+    ///
+    /// The window's CPU time is read within its host time (opened before
+    /// its first reading, closed after its last), so that it never
+    /// exceeds the host time its slices were estimated by: a reading
+    /// outside it (the system call takes microseconds on a loaded host)
+    /// once charged a node computing after its last message.
+    fn settle(&mut self, w: CpuWindow) -> (f64, Instant) {
+        let before = Instant::now();
         let cpu_now = cpu_seconds();
-        let tail = now - w.slice_end;
+        let tail = Instant::now().saturating_duration_since(w.slice_end);
         let tail = if tail < CPU_WINDOW {
             tail.as_secs_f64()
         } else {
@@ -719,7 +738,7 @@ impl<'a> Node<'a> {
         self.report.busy_seconds += cpu;
         let speed = self.model.compute_speed;
         self.clock = (self.clock - w.estimated + cpu / speed).max(w.floor);
-        cpu_now
+        (cpu_now, before)
     }
 
     /// Takes every message offered now.
