@@ -495,7 +495,10 @@ impl Gen {
             }
             _ => {
                 // Star-shaped about its centre (so simple), in the plane
-                // z = 0 so that rounding keeps it planar; a transform turns it.
+                // z = 0 so that rounding keeps it planar; a transform turns it,
+                // one time in three about z alone, so that it stays in a
+                // coordinate plane (met as a box's face, `on_coordinate_plane`).
+                let level = self.rng.chance(1.0 / 3.0);
                 let n = 3 + self.rng.below(6);
                 let gap = TAU / n as f64;
                 let a0 = self.rng.range(0.0, TAU);
@@ -506,9 +509,14 @@ impl Gen {
                         [q(rho * a.cos()), q(rho * a.sin()), 0.0]
                     })
                     .collect();
+                let mut rotate = self.rotation();
+                if level {
+                    rotate[0] = 0.0;
+                    rotate[1] = 0.0;
+                }
                 Node::Transform {
                     translate: center,
-                    rotate: self.rotation(),
+                    rotate,
                     scale: [1.0; 3],
                     child: Box::new(Node::Polygon { vertices, material }),
                     material: None,
