@@ -171,8 +171,7 @@ impl Primitive {
     pub fn rounding_size(&self, p: Vec3) -> f64 {
         match (&self.shape, &self.transform) {
             (Shape::Box { .. }, None) => 0.0,
-            (Shape::Triangle { a, b, c }, None) if coordinate_plane(&[*a, *b, *c]).is_some() => 0.0,
-            (Shape::Polygon(poly), None) if coordinate_plane(&poly.vertices).is_some() => 0.0,
+            (shape, None) if shape.in_coordinate_plane() => 0.0,
             (Shape::Box { .. }, Some(m)) => (p - m.translation).abs().max_element(),
             _ => (self.bounds.max - self.bounds.min).max_element(),
         }
@@ -747,6 +746,18 @@ fn intersect_shape(shape: &Shape, ray: &Ray) -> PrimHits {
             None => PrimHits::Miss,
         },
         Shape::Polygon(p) => polygon_hits(ray, p),
+    }
+}
+
+impl Shape {
+    /// Whether this is a triangle or polygon lying in a coordinate plane,
+    /// whose hits are met as a box's face is (`on_coordinate_plane`).
+    fn in_coordinate_plane(&self) -> bool {
+        match self {
+            Shape::Triangle { a, b, c } => coordinate_plane(&[*a, *b, *c]).is_some(),
+            Shape::Polygon(p) => coordinate_plane(&p.vertices).is_some(),
+            _ => false,
+        }
     }
 }
 
