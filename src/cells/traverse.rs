@@ -428,8 +428,8 @@ impl RegionCells {
 /// ray's many cells (one division per axis per ray, not per test).
 #[derive(Clone, Copy, Debug)]
 struct SlabRay {
+    ray: Ray,
     o: [f64; 3],
-    d: [f64; 3],
     inv: [f64; 3],
     /// Every direction component is normal (not zero, not subnormal): the
     /// products below cannot be NaN, so the test needs no branch per axis.
@@ -443,19 +443,20 @@ impl SlabRay {
         let plain = d.iter().all(|v| v.is_normal())
             && inv.iter().all(|v| v.is_finite())
             && o.iter().all(|v| v.is_finite());
-        SlabRay { o, d, inv, plain }
+        SlabRay {
+            ray: *r,
+            o,
+            inv,
+            plain,
+        }
     }
 
-    /// Whether the ray meets box `b`: `Aabb::ray_interval(..).is_some()`
-    /// with a multiplication by the inverse for the division. Culling boxes
-    /// are inflated (`CsgTree::cull_bounds`), so a rounding difference
-    /// cannot cull a box the ray reaches.
-    /// `Aabb::ray_interval` by the inverse direction (for the scene box).
+    /// The slab test's entry and exit parameters for box `b` (entry above
+    /// exit where the ray misses it), for a `plain` ray: no direction
+    /// component zero or subnormal, so no product is NaN and no axis needs
+    /// a branch.
     #[inline(always)]
-    fn interval(&self, b: &Aabb, ray: &Ray) -> Option<(f64, f64)> {
-        if !self.plain {
-            return b.ray_interval(ray);
-        }
+    fn plain_slabs(&self, b: &Aabb) -> (f64, f64) {
         let (x0, x1) = (
             (b.min.x - self.o[0]) * self.inv[0],
             (b.max.x - self.o[0]) * self.inv[0],
@@ -470,6 +471,17 @@ impl SlabRay {
         );
         let t0 = max(max(min(x0, x1), min(y0, y1)), min(z0, z1));
         let t1 = min(min(max(x0, x1), max(y0, y1)), max(z0, z1));
+        (t0, t1)
+    }
+
+    /// `Aabb::ray_interval` by the inverse direction (for the scene box
+    /// and the clip's boxes).
+    #[inline(always)]
+    fn interval(&self, b: &Aabb, ray: &Ray) -> Option<(f64, f64)> {
+        if !self.plain {
+            return b.ray_interval(ray);
+        }
+        let (t0, t1) = self.plain_slabs(b);
         (t0 <= t1).then_some((t0, t1))
     }
 
@@ -508,53 +520,26 @@ impl SlabRay {
         }
     }
 
+    /// Whether the ray meets box `b`: `Aabb::ray_interval(..).is_some()`
+    /// with a multiplication by the inverse for the division. Culling boxes
+    /// are inflated (`CsgTree::cull_bounds`), so a rounding difference
+    /// cannot cull a box the ray reaches.
     #[inline(always)]
     fn meets(&self, b: &Aabb) -> bool {
         if self.plain {
-            let (x0, x1) = (
-                (b.min.x - self.o[0]) * self.inv[0],
-                (b.max.x - self.o[0]) * self.inv[0],
-            );
-            let (y0, y1) = (
-                (b.min.y - self.o[1]) * self.inv[1],
-                (b.max.y - self.o[1]) * self.inv[1],
-            );
-            let (z0, z1) = (
-                (b.min.z - self.o[2]) * self.inv[2],
-                (b.max.z - self.o[2]) * self.inv[2],
-            );
-            let t0 = max(max(min(x0, x1), min(y0, y1)), min(z0, z1));
-            let t1 = min(min(max(x0, x1), max(y0, y1)), max(z0, z1));
+            let (t0, t1) = self.plain_slabs(b);
             // An empty box has min > max: its slabs cross over, t0 > t1.
             return t0 <= t1;
         }
-        let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
-        let (lo, hi) = (b.min.to_array(), b.max.to_array());
-        for a in 0..3 {
-            if self.d[a] == 0.0 {
-                if self.o[a] < lo[a] || self.o[a] > hi[a] {
-                    return false;
-                }
-                continue;
-            }
-            let (mut a0, mut a1) = (
-                (lo[a] - self.o[a]) * self.inv[a],
-                (hi[a] - self.o[a]) * self.inv[a],
-            );
-            if a0 > a1 {
-                std::mem::swap(&mut a0, &mut a1);
-            }
-            if a0 > t0 {
-                t0 = a0;
-            }
-            if a1 < t1 {
-                t1 = a1;
-            }
-            if t0 > t1 {
-                return false;
-            }
-        }
-        true
+        self.meets_not_plain(b)
+    }
+
+    /// `meets` for a ray with a zero or subnormal direction component:
+    /// rare, and out of line so that the walk's loop stays small.
+    #[cold]
+    #[inline(never)]
+    fn meets_not_plain(&self, b: &Aabb) -> bool {
+        b.ray_interval(&self.ray).is_some()
     }
 }
 
