@@ -173,6 +173,20 @@ impl Primitive {
             (Shape::Box { .. }, None) => 0.0,
             (shape, None) if shape.in_coordinate_plane() => 0.0,
             (Shape::Box { .. }, Some(m)) => (p - m.translation).abs().max_element(),
+            (
+                &Shape::Cone {
+                    base,
+                    base_radius,
+                    top,
+                    top_radius,
+                    ..
+                },
+                m,
+            ) => {
+                let extent = (self.bounds.max - self.bounds.min).max_element();
+                flat_cone_size(p, m.as_deref(), (base, base_radius), (top, top_radius))
+                    .map_or(extent, |size| size.min(extent))
+            }
             _ => (self.bounds.max - self.bounds.min).max_element(),
         }
     }
@@ -1039,6 +1053,74 @@ fn quadratic_roots(qa: f64, qb: f64, qc: f64, disc: f64) -> (f64, f64) {
     if t0 <= t1 { (t0, t1) } else { (t1, t0) }
 }
 
+/// `Primitive::rounding_size` of a flat cone (`ConeScale`), hit at world
+/// point `p`: set up in the axial scale, its quadric combines only the
+/// distances along the axis, `rb/|k|` (to the apex) and those of the ray's
+/// points from the base, which the hit's distance from the base bounds
+/// beside the distance travelled (`offset_origin` adds that); under a map,
+/// stretched by its norm, and with the rounding of the ray's origin mapped
+/// to the cone's space (`M⁻¹·(o − T)`, as for a box) besides. None for any
+/// other cone, whose world extent is its size.
+fn flat_cone_size(
+    p: Vec3,
+    m: Option<&Affine>,
+    (base, rb): (Vec3, f64),
+    (top, rt): (Vec3, f64),
+) -> Option<f64> {
+    let len = (top - base).length();
+    let k = (rt - rb) / len;
+    if !(k.abs() > 1.0) {
+        return None;
+    }
+    let frobenius = |m: &DMat3| {
+        (m.x_axis.length_squared() + m.y_axis.length_squared() + m.z_axis.length_squared()).sqrt()
+    };
+    let axial = |q: Vec3| (q - base).length() + rb / k.abs();
+    Some(match m {
+        None => axial(p),
+        Some(m) => {
+            let (norm, inv_norm) = (frobenius(&m.linear), frobenius(&m.inv_linear));
+            norm * axial(m.inverse_point(p)) + norm * inv_norm * (p - m.translation).length()
+        }
+    })
+}
+
+/// The scale in which `cone_hits` sets up a cone's quadric `|p⊥|² = ρ²`,
+/// `ρ = rb + k·s`. A cone whose radius changes faster than its axis runs
+/// (`|k| > 1`: flat, up to a disc of radius 1e30 and height 0.4, which
+/// the scene mutants made) is set up divided by `k²`, as
+/// `|p⊥/k|² = (rb/|k| ± s)²`: the signed radius `rb + k·s` cancels to the
+/// hit's small distance from the axis out of terms of the size of `rb`
+/// (an error of ε·1e30 where the ball it stood over was a unit away), its
+/// axial form `rb/|k| ± s` out of terms of the axial distances only. The
+/// surface is the same (the axial rate taken as exactly ±1, the slope's
+/// rounding, ε); the signs of `ρ` and of `m` are kept, as the scale is
+/// positive. Any other cone keeps scale 1, bit for bit.
+#[derive(Clone, Copy)]
+struct ConeScale {
+    /// `rb`, or `rb / |k|`.
+    rb: f64,
+    /// `k`, or its sign.
+    k: f64,
+    /// 1, or `1 / |k|`: the factor of the perpendicular parts.
+    perp: f64,
+}
+
+impl ConeScale {
+    #[inline]
+    fn new(rb: f64, k: f64) -> ConeScale {
+        if k.abs() > 1.0 {
+            ConeScale {
+                rb: rb / k.abs(),
+                k: k.signum(),
+                perp: 1.0 / k.abs(),
+            }
+        } else {
+            ConeScale { rb, k, perp: 1.0 }
+        }
+    }
+}
+
 /// A cone or frustum (`base_radius != top_radius`). With `f = o − base`,
 /// `s = (f + t·d)·a` the axial coordinate and `ρ(s) = rb + k·s` the signed
 /// radius (`k = (rt − rb)/h`), the double cone is `|p⊥|² = ρ²`:
@@ -1060,14 +1142,17 @@ fn cone_hits(ray: &Ray, base: Vec3, rb: f64, top: Vec3, rt: f64, capped: bool) -
     let Some(slab) = cap_slab(ray, base, top, a, base_part, top_part) else {
         return PrimHits::Miss;
     };
-    let k = (rt - rb) / len;
+    // The radius's rate along the axis; a flat cone (|k| > 1) is set up
+    // in the axial scale instead (`ConeScale`), the same quadric divided by
+    // k², so that no term holds the radius's magnitude.
+    let sc = ConeScale::new(rb, (rt - rb) / len);
     let (o, d) = (ray.origin, ray.dir);
     let f = o - base;
     let (fa, da) = (f.dot(a), d.dot(a));
-    let f_perp = f - a * fa;
-    let d_perp = d - a * da;
-    let g = rb + k * fa;
-    let m = k * da;
+    let f_perp = (f - a * fa) * sc.perp;
+    let d_perp = (d - a * da) * sc.perp;
+    let g = sc.rb + sc.k * fa;
+    let m = sc.k * da;
     let qa = d_perp.dot(d_perp) - m * m;
     let qb = f_perp.dot(d_perp) - g * m;
     let qc = f_perp.dot(f_perp) - g * g;
@@ -1094,7 +1179,7 @@ fn cone_hits(ray: &Ray, base: Vec3, rb: f64, top: Vec3, rt: f64, capped: bool) -
         if !(disc > 0.0) {
             return PrimHits::Miss;
         }
-        let (t0, t1) = cone_roots((f, d, a, d_perp), (rb, k, m), (qa, qb, qc, disc));
+        let (t0, t1) = cone_roots((f, d, a, d_perp), (sc, m), (qa, qb, qc, disc));
         // In exact arithmetic the slab already excludes the mirror nappe;
         // this keeps rounding near a pointed end from admitting it.
         let mid = 0.5 * t0 + 0.5 * t1;
@@ -1107,7 +1192,7 @@ fn cone_hits(ray: &Ray, base: Vec3, rb: f64, top: Vec3, rt: f64, capped: bool) -
         // here, and its sign says which end lies in the real nappe.
         let disc = qb * qb - qa * qc;
         if disc > 0.0 {
-            let (t0, t1) = cone_roots((f, d, a, d_perp), (rb, k, m), (qa, qb, qc, disc));
+            let (t0, t1) = cone_roots((f, d, a, d_perp), (sc, m), (qa, qb, qc, disc));
             if m > 0.0 {
                 (crossing(t1, SIDE), above)
             } else {
@@ -1138,7 +1223,7 @@ fn cone_hits(ray: &Ray, base: Vec3, rb: f64, top: Vec3, rt: f64, capped: bool) -
 #[inline]
 fn cone_roots(
     (f, d, a, d_perp): (Vec3, Vec3, Vec3, Vec3),
-    (rb, k, m): (f64, f64, f64),
+    (sc, m): (ConeScale, f64),
     (qa, qb, qc, disc): (f64, f64, f64, f64),
 ) -> (f64, f64) {
     let (t0, t1) = quadratic_roots(qa, qb, qc, disc);
@@ -1146,8 +1231,8 @@ fn cone_roots(
     let refine = |t: f64| {
         let f1 = f + d * t;
         let fa = f1.dot(a);
-        let f_perp = f1 - a * fa;
-        let g = rb + k * fa;
+        let f_perp = (f1 - a * fa) * sc.perp;
+        let g = sc.rb + sc.k * fa;
         let b1 = f_perp.dot(d_perp) - g * m;
         let c1 = f_perp.dot(f_perp) - g * g;
         // A Newton step from 0 on `A x² + 2 b1 x + c1`: the root is some
