@@ -159,10 +159,13 @@ impl Primitive {
     /// the world, whatever the map's scales; `|o − T|` is at most
     /// `|p − T|` and the distance, so `|p − T|` covers it nine times over.
     /// A triangle or polygon lying in a coordinate plane is met as a box's
-    /// face is (`on_coordinate_plane`): size 0 too. Every other shape
+    /// face is (`on_coordinate_plane`): size 0 too. A cylinder or cone
+    /// combines distances along and from its axis that the hit's distance
+    /// from its base and its height bound (`axial_size`), which for a disc
+    /// of radius 1e20 are far below its extent. Every other shape
     /// subtracts or combines magnitudes of its own size (a sphere's centre
-    /// and radius, an axis's ends, a tilted polygon's vertices), which its
-    /// world extent bounds.
+    /// and radius, a tilted polygon's vertices), which its world extent
+    /// bounds.
     ///
     /// Before this, a ground box reaching 1e20 pushed every shadow ray from
     /// it 1.4e6 up, over whatever should have shadowed it
@@ -173,6 +176,10 @@ impl Primitive {
             (Shape::Box { .. }, None) => 0.0,
             (shape, None) if shape.in_coordinate_plane() => 0.0,
             (Shape::Box { .. }, Some(m)) => (p - m.translation).abs().max_element(),
+            (&Shape::Cylinder { base, top, .. }, m) => {
+                let extent = (self.bounds.max - self.bounds.min).max_element();
+                axial_size(p, m.as_deref(), base, top, 0.0).min(extent)
+            }
             (
                 &Shape::Cone {
                     base,
@@ -184,8 +191,14 @@ impl Primitive {
                 m,
             ) => {
                 let extent = (self.bounds.max - self.bounds.min).max_element();
-                flat_cone_size(p, m.as_deref(), (base, base_radius), (top, top_radius))
-                    .map_or(extent, |size| size.min(extent))
+                let k = (top_radius - base_radius) / (top - base).length();
+                // A flat cone's quadric holds the distance to its apex.
+                let apex = if k.abs() > 1.0 {
+                    base_radius / k.abs()
+                } else {
+                    0.0
+                };
+                axial_size(p, m.as_deref(), base, top, apex).min(extent)
             }
             _ => (self.bounds.max - self.bounds.min).max_element(),
         }
@@ -1053,36 +1066,35 @@ fn quadratic_roots(qa: f64, qb: f64, qc: f64, disc: f64) -> (f64, f64) {
     if t0 <= t1 { (t0, t1) } else { (t1, t0) }
 }
 
-/// `Primitive::rounding_size` of a flat cone (`ConeScale`), hit at world
-/// point `p`: set up in the axial scale, its quadric combines only the
-/// distances along the axis, `rb/|k|` (to the apex) and those of the ray's
-/// points from the base, which the hit's distance from the base bounds
-/// beside the distance travelled (`offset_origin` adds that); under a map,
-/// stretched by its norm, and with the rounding of the ray's origin mapped
-/// to the cone's space (`M⁻¹·(o − T)`, as for a box) besides. None for any
-/// other cone, whose world extent is its size.
-fn flat_cone_size(
-    p: Vec3,
-    m: Option<&Affine>,
-    (base, rb): (Vec3, f64),
-    (top, rt): (Vec3, f64),
-) -> Option<f64> {
-    let len = (top - base).length();
-    let k = (rt - rb) / len;
-    if !(k.abs() > 1.0) {
-        return None;
-    }
+/// `Primitive::rounding_size` of a cylinder or cone hit at world point
+/// `p`, beside its extent (which also bounds it). Its caps are met at
+/// `(end − o)·a / (d·a)`, as exact as the distances from the ray's origin
+/// to the ends; its side's quadric combines distances from the base and
+/// radii, which at a side hit are at most the hit's distance from the base
+/// and the height (a side hit lies as far from the axis as the radius
+/// there), and a flat cone's (`ConeScale`) the distance to its apex,
+/// `apex`. So the hit's distance from the base, the height and `apex`
+/// bound them all, beside the distance travelled (`offset_origin` adds
+/// that). Under a map: stretched by its norm, with the rounding of the
+/// ray's origin mapped to the primitive's space (`M⁻¹·(o − T)`, as for a
+/// box) besides.
+///
+/// Before, the extent alone: a disc ground (a cylinder or flat cone of
+/// radius 1e20, height 0.5) pushed its spawned rays some 1e6 off, over the
+/// ball that should have shadowed it (`docs/robustness.md`, "A disc of
+/// radius 1e30").
+fn axial_size(p: Vec3, m: Option<&Affine>, base: Vec3, top: Vec3, apex: f64) -> f64 {
     let frobenius = |m: &DMat3| {
         (m.x_axis.length_squared() + m.y_axis.length_squared() + m.z_axis.length_squared()).sqrt()
     };
-    let axial = |q: Vec3| (q - base).length() + rb / k.abs();
-    Some(match m {
+    let axial = |q: Vec3| (q - base).length() + (top - base).length() + apex;
+    match m {
         None => axial(p),
         Some(m) => {
             let (norm, inv_norm) = (frobenius(&m.linear), frobenius(&m.inv_linear));
             norm * axial(m.inverse_point(p)) + norm * inv_norm * (p - m.translation).length()
         }
-    })
+    }
 }
 
 /// The scale in which `cone_hits` sets up a cone's quadric `|p⊥|² = ρ²`,
