@@ -677,8 +677,9 @@ fn case_23_scaled_tiny_and_huge_renders_the_same() {
 }
 
 /// The stiff scenes on the hypercube: cases 22 and 23 (the scene moved
-/// 1e8 away, scaled by 1e-6 and 1e6), the ground reaching 1e50 away and
-/// the wall a hair behind the eye plane (below) give, on 2, 8 and 32
+/// 1e8 away, scaled by 1e-6 and 1e6), the ground reaching 1e50 away, the
+/// discs of radius 1e30 (a flat cone and a cylinder) and the wall a hair
+/// behind the eye plane (below) give, on 2, 8 and 32
 /// nodes, exactly the image the single node gives. The machine's own
 /// arithmetic meets these magnitudes too: the cells it walks past by
 /// their content's hull (`meets_remote`), the super cells split for
@@ -691,6 +692,17 @@ fn the_stiff_scenes_on_the_machine_give_the_single_node_image() {
         ("scaled by 1e-6", shifted_scene(|p| p * 1e-6, 1e-6)),
         ("scaled by 1e6", shifted_scene(|p| p * 1e6, 1e6)),
         ("a ground reaching 1e50", far_ground_scene(1e50)),
+        (
+            "a tilted flat cone reaching 1e30",
+            far_ground_scene_with(
+                "Transform(rotate: (4, -3, 0), child: Cone(base: (0, 0, -0.5), \
+                 base_radius: 1e30, top: (0, 0, 0), top_radius: 0)),",
+            ),
+        ),
+        (
+            "a disc reaching 1e30",
+            far_ground_scene_with("Cylinder(base: (0, 0, -0.5), top: (0, 0, 0), radius: 1e30),"),
+        ),
         (
             "a wall 1e-12 behind the eye",
             wall_behind_eye_scene("-1e-12"),
