@@ -195,6 +195,12 @@ fn sin_cos_deg(deg: f64) -> (f64, f64) {
     deg.to_radians().sin_cos()
 }
 
+/// The Frobenius norm of `m`, an upper bound of how far it stretches any
+/// vector (its operator norm).
+pub fn frobenius_norm(m: &DMat3) -> f64 {
+    (m.x_axis.length_squared() + m.y_axis.length_squared() + m.z_axis.length_squared()).sqrt()
+}
+
 /// An affine map `p ↦ M·p + t` with its inverse and the normal matrix
 /// (inverse transpose of `M`), so that normals map correctly under
 /// non-uniform scale.

@@ -22,7 +22,7 @@
 // "no hit" branch.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use crate::geom::{Aabb, Affine, Ray, Vec3};
+use crate::geom::{Aabb, Affine, Ray, Vec3, frobenius_norm};
 use crate::scene::MaterialId;
 use glam::DMat3;
 
@@ -172,13 +172,13 @@ impl Primitive {
     /// (`docs/robustness.md`, "Spawned rays of a box reaching 1e20"), and
     /// so did a ground polygon ("A ground polygon reaching 1e20").
     pub fn rounding_size(&self, p: Vec3) -> f64 {
+        let extent = || (self.bounds.max - self.bounds.min).max_element();
         match (&self.shape, &self.transform) {
             (Shape::Box { .. }, None) => 0.0,
             (shape, None) if shape.in_coordinate_plane() => 0.0,
             (Shape::Box { .. }, Some(m)) => (p - m.translation).abs().max_element(),
             (&Shape::Cylinder { base, top, .. }, m) => {
-                let extent = (self.bounds.max - self.bounds.min).max_element();
-                axial_size(p, m.as_deref(), base, top, 0.0).min(extent)
+                axial_size(p, m.as_deref(), base, top, 0.0).min(extent())
             }
             (
                 &Shape::Cone {
@@ -190,17 +190,11 @@ impl Primitive {
                 },
                 m,
             ) => {
-                let extent = (self.bounds.max - self.bounds.min).max_element();
                 let k = (top_radius - base_radius) / (top - base).length();
-                // A flat cone's quadric holds the distance to its apex.
-                let apex = if k.abs() > 1.0 {
-                    base_radius / k.abs()
-                } else {
-                    0.0
-                };
-                axial_size(p, m.as_deref(), base, top, apex).min(extent)
+                let apex = ConeScale::new(base_radius, k).apex();
+                axial_size(p, m.as_deref(), base, top, apex).min(extent())
             }
-            _ => (self.bounds.max - self.bounds.min).max_element(),
+            _ => extent(),
         }
     }
 
@@ -1084,14 +1078,11 @@ fn quadratic_roots(qa: f64, qb: f64, qc: f64, disc: f64) -> (f64, f64) {
 /// ball that should have shadowed it (`docs/robustness.md`, "A disc of
 /// radius 1e30").
 fn axial_size(p: Vec3, m: Option<&Affine>, base: Vec3, top: Vec3, apex: f64) -> f64 {
-    let frobenius = |m: &DMat3| {
-        (m.x_axis.length_squared() + m.y_axis.length_squared() + m.z_axis.length_squared()).sqrt()
-    };
     let axial = |q: Vec3| (q - base).length() + (top - base).length() + apex;
     match m {
         None => axial(p),
         Some(m) => {
-            let (norm, inv_norm) = (frobenius(&m.linear), frobenius(&m.inv_linear));
+            let (norm, inv_norm) = (frobenius_norm(&m.linear), frobenius_norm(&m.inv_linear));
             norm * axial(m.inverse_point(p)) + norm * inv_norm * (p - m.translation).length()
         }
     }
@@ -1130,6 +1121,12 @@ impl ConeScale {
         } else {
             ConeScale { rb, k, perp: 1.0 }
         }
+    }
+
+    /// The distance to the apex that a flat cone's quadric holds
+    /// (`rb / |k|`); 0 for any other, whose quadric holds radii instead.
+    fn apex(&self) -> f64 {
+        if self.perp < 1.0 { self.rb } else { 0.0 }
     }
 }
 

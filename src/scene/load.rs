@@ -37,7 +37,7 @@ use std::path::Path;
 use super::model::{self, Node, SceneFile, Vector};
 use super::{Camera, Light, MAX_DEPTH_LIMIT, Material, MaterialId, Scene};
 use crate::csg::{CsgTree, NodeId, Op, Polygon, PrimId, Primitive, Shape};
-use crate::geom::{Affine, Vec3};
+use crate::geom::{Affine, Vec3, frobenius_norm};
 use crate::{Error, Result};
 
 /// The syntaxes a scene file may be written in, chosen by extension.
@@ -1259,13 +1259,7 @@ fn curved_size(prim: &Primitive) -> Option<(f64, f64)> {
         _ => return None,
     };
     let stretch = match &prim.transform {
-        Some(t) => {
-            let m = t.inv_linear;
-            let frobenius =
-                (m.x_axis.length_squared() + m.y_axis.length_squared() + m.z_axis.length_squared())
-                    .sqrt();
-            1.0 / frobenius
-        }
+        Some(t) => 1.0 / frobenius_norm(&t.inv_linear),
         None => 1.0,
     };
     Some((radius, radius * stretch))
