@@ -11,6 +11,8 @@ mod cli;
 mod convert;
 #[path = "it/csg_props.rs"]
 mod csg_props;
+#[path = "it/garbled.rs"]
+mod garbled;
 #[path = "it/known_answer.rs"]
 mod known_answer;
 #[path = "it/machine.rs"]
