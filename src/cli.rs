@@ -304,7 +304,52 @@ pub(crate) fn check_writable_dir(path: &Path) -> Result<()> {
             dir.display()
         )));
     }
+    if path.is_dir() {
+        return Err(Error::Usage(format!(
+            "{}: is a folder; give a file name",
+            path.display()
+        )));
+    }
     Ok(())
+}
+
+/// Refuses a run whose outputs would replace one of its inputs, or one
+/// another (`convert s.ron -o s.ron` would rewrite the scene without its
+/// comments; `--stats` on the scene would replace it; two outputs on one
+/// path would lose the first), before anything is read or rendered.
+/// Paths name the same file if they resolve to the same folder and name,
+/// or, for files that exist, to the same file (links included).
+pub(crate) fn check_apart(inputs: &[(&str, &Path)], outputs: &[(&str, &Path)]) -> Result<()> {
+    for (i, &(what, out)) in outputs.iter().enumerate() {
+        let earlier = outputs[..i].iter();
+        for &(other, path) in inputs.iter().chain(earlier) {
+            if same_file(out, path) {
+                return Err(Error::Usage(format!(
+                    "{}: the {what} would replace the {other} {}; choose another name",
+                    out.display(),
+                    path.display()
+                )));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Whether two paths name one file (see `check_apart`).
+fn same_file(a: &Path, b: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    if let (Ok(x), Ok(y)) = (std::fs::metadata(a), std::fs::metadata(b)) {
+        return x.dev() == y.dev() && x.ino() == y.ino();
+    }
+    // One does not exist yet: compare where each would be.
+    let place = |p: &Path| -> Option<PathBuf> {
+        let dir = match p.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        Some(dir.canonicalize().ok()?.join(p.file_name()?))
+    };
+    matches!((place(a), place(b)), (Some(x), Some(y)) if x == y)
 }
 
 fn prepare_render(a: RenderArgs) -> Result<RenderJob> {
@@ -315,6 +360,11 @@ fn prepare_render(a: RenderArgs) -> Result<RenderJob> {
     if let Some(s) = &a.stats {
         check_writable_dir(s)?;
     }
+    let mut inputs = vec![("scene", a.scene.as_path())];
+    inputs.extend(a.reference.as_deref().map(|r| ("reference", r)));
+    let mut outputs = vec![("image", output.as_path())];
+    outputs.extend(a.stats.as_deref().map(|s| ("statistics", s)));
+    check_apart(&inputs, &outputs)?;
     if a.spp == 0 || a.spp > 65536 {
         return Err(Error::Usage(format!(
             "--spp must be in 1..=65536, got {}",
@@ -705,6 +755,11 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
     if let Some(p) = &a.stats {
         check_writable_dir(p)?;
     }
+    let outputs: Vec<(&str, &Path)> = [("overlay", &a.overlay), ("statistics", &a.stats)]
+        .into_iter()
+        .filter_map(|(what, p)| Some((what, p.as_deref()?)))
+        .collect();
+    check_apart(&[("scene", &a.scene)], &outputs)?;
     let threads = host_threads(a.threads)?;
     let (scene, width, height) = load_for_run(&a.scene, a.width, a.height, a.quiet)?;
     // The structure the modelled machine would use (the machine asks for

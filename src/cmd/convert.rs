@@ -62,6 +62,7 @@ pub fn run(a: ConvertArgs) -> Result<()> {
     // Refuse bad options before reading anything.
     let target = target(&a.output)?;
     crate::cli::check_writable_dir(&a.output)?;
+    crate::cli::check_apart(&[("scene", &a.scene)], &[("output", &a.output)])?;
     // The whole conversion on the loading thread's stack: models thousands
     // of levels deep are walked, and dropped, recursively (`scene::model`).
     let text = load::on_load_stack(|| -> Result<String> {

@@ -158,6 +158,98 @@ fn bad_options_are_refused_before_rendering() {
     );
 }
 
+/// An output that would replace an input, or another output, is refused
+/// before anything is read or written: `convert` onto its own scene would
+/// rewrite it without its comments, `--stats` onto the scene would replace
+/// it, the image onto its reference would lose it. So is an output that
+/// names a folder (it failed only after the render). Every file is left as
+/// it was, and no other appears.
+#[test]
+fn outputs_that_would_replace_an_input_or_each_other_are_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    std::fs::copy(util::repo("scenes/small/sphere.ron"), dir.join("s.ron")).unwrap();
+    std::fs::create_dir(dir.join("folder.png")).unwrap();
+    assert!(
+        render_ok(dir, "ref.png", &[]).status.success(),
+        "the reference renders"
+    );
+    #[cfg(unix)]
+    std::os::unix::fs::symlink("s.ron", dir.join("link.ron")).unwrap();
+    let before: Vec<(PathBuf, Vec<u8>)> = files_in(dir)
+        .into_iter()
+        .filter(|p| p.is_file())
+        .map(|p| {
+            let bytes = std::fs::read(&p).unwrap();
+            (p, bytes)
+        })
+        .collect();
+    let cases: [(&[&str], &str); 9] = [
+        (
+            &["convert", "s.ron", "-o", "s.ron"],
+            "would replace the scene",
+        ),
+        (
+            &["convert", "s.ron", "-o", "./s.ron"],
+            "would replace the scene",
+        ),
+        (
+            &["convert", "s.ron", "-o", "link.ron"],
+            "would replace the scene",
+        ),
+        (
+            &["convert", "link.ron", "-o", "s.ron"],
+            "would replace the scene",
+        ),
+        (
+            &["render", "s.ron", "-o", "x.png", "--stats", "s.ron"],
+            "statistics would replace the scene",
+        ),
+        (
+            &["render", "s.ron", "-o", "x.png", "--stats", "x.png"],
+            "would replace the image",
+        ),
+        (
+            &["render", "s.ron", "-o", "ref.png", "--reference", "ref.png"],
+            "would replace the reference",
+        ),
+        (
+            &["inspect", "s.ron", "--overlay", "x.png", "--stats", "x.png"],
+            "would replace the overlay",
+        ),
+        (&["render", "s.ron", "-o", "folder.png"], "is a folder"),
+    ];
+    let mut problems = Vec::new();
+    for (args, want) in cases {
+        let o = run(dir, args);
+        let err = stderr(&o);
+        let mut wrong = Vec::new();
+        if o.status.code() != Some(2) {
+            wrong.push(format!("exit status {:?}, want 2", o.status.code()));
+        }
+        if err.trim_end_matches('\n').contains('\n') || !err.contains(want) {
+            wrong.push(format!("stderr is not one line with {want:?}"));
+        }
+        let now: Vec<PathBuf> = files_in(dir).into_iter().filter(|p| p.is_file()).collect();
+        if now.len() != before.len() {
+            wrong.push(format!("files now: {now:?}"));
+        }
+        for (p, bytes) in &before {
+            if std::fs::read(p).ok().as_ref() != Some(bytes) {
+                wrong.push(format!("{} changed", p.display()));
+            }
+        }
+        if !wrong.is_empty() {
+            problems.push(format!(
+                "hypercast {}: {}\n  stderr: {err}",
+                args.join(" "),
+                wrong.join("; ")
+            ));
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
 /// Renders `scenes/small/sphere.ron` at 40x30 into `dir/name`.
 pub fn render_ok(dir: &Path, name: &str, extra: &[&str]) -> Output {
     let sphere = util::repo("scenes/small/sphere.ron");
