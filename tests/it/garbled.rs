@@ -96,10 +96,13 @@ fn assert_one_line_naming(message: &str, file: &Path, what: &str) {
     );
 }
 
+/// A scene file's path, syntax and text.
+type SceneText = (PathBuf, SceneSyntax, String);
+
 /// Every text the tests garble: the bundled scenes small enough to render
 /// at once (the level-2 sphereflake for NFF), the example files of every
 /// syntax, and the topologies.
-fn sources() -> (Vec<(PathBuf, SceneSyntax, String)>, Vec<(PathBuf, String)>) {
+fn sources() -> (Vec<SceneText>, Vec<(PathBuf, String)>) {
     let mut scenes = Vec::new();
     for dir in ["scenes", "scenes/small", "tests/data/good"] {
         for e in std::fs::read_dir(util::repo(dir)).unwrap().flatten() {
