@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use hypercast::machine::topology::parse_topology;
 use hypercast::machine::{MachineOptions, Topology};
-use hypercast::scene::{Scene, SceneSyntax, parse_scene_str};
+use hypercast::scene::{SceneSyntax, parse_scene_str};
 
 use crate::cells::{assert_renders_equal, hunt_size, seeds};
 use crate::csg_props::Rng;
@@ -87,13 +87,48 @@ fn garble(text: &str, rng: &mut Rng) -> (String, String) {
     (out, what)
 }
 
-/// A loader's error as the CLI prints it: one line that names the file.
-fn assert_one_line_naming(message: &str, file: &Path, what: &str) {
-    let name = file.file_name().unwrap().to_string_lossy();
-    assert!(
-        message.contains(name.as_ref()) && !message.trim_end().contains('\n'),
-        "{what}: the error does not name {name} on one line:\n{message}"
-    );
+/// `text` with one to `max_edits` random edits, and what they were, for a
+/// failure message.
+fn garbled(
+    seed: u64,
+    text: &str,
+    path: &Path,
+    max_edits: usize,
+    rng: &mut Rng,
+) -> (String, String) {
+    let mut garbled = text.to_string();
+    let mut what = Vec::new();
+    for _ in 0..1 + rng.below(max_edits) {
+        let (g, w) = garble(&garbled, rng);
+        garbled = g;
+        what.push(w);
+    }
+    let what = format!("seed {seed}: {} with {}", path.display(), what.join("; "));
+    (garbled, what)
+}
+
+/// What `load` makes of the garbled `text`: a value, or None after an error
+/// that names the file on one line, as the CLI prints it; never a panic.
+fn loaded<T>(
+    what: &str,
+    text: &str,
+    file: &Path,
+    load: impl FnOnce(&str) -> hypercast::error::Result<T>,
+) -> Option<T> {
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| load(text)));
+    match result {
+        Err(_) => panic!("{what}: the loader panicked; the text:\n{text}"),
+        Ok(Err(e)) => {
+            let message = e.to_string();
+            let name = file.file_name().unwrap().to_string_lossy();
+            assert!(
+                message.contains(name.as_ref()) && !message.trim_end().contains('\n'),
+                "{what}: the error does not name {name} on one line:\n{message}"
+            );
+            None
+        }
+        Ok(Ok(value)) => Some(value),
+    }
 }
 
 /// A scene file's path, syntax and text.
@@ -154,23 +189,11 @@ fn garbled_scene_files_load_with_a_located_error_or_render_as_roth_does() {
     for seed in tries {
         let mut rng = rng_for(seed);
         let (path, syntax, text) = &scenes[rng.below(scenes.len())];
-        let mut garbled = text.clone();
-        let mut what = Vec::new();
-        for _ in 0..1 + rng.below(3) {
-            let (g, w) = garble(&garbled, &mut rng);
-            garbled = g;
-            what.push(w);
-        }
-        let what = format!("seed {seed}: {} with {}", path.display(), what.join("; "));
-        let loaded = std::panic::catch_unwind(|| parse_scene_str(&garbled, *syntax, path));
-        let scene: Scene = match loaded {
-            Err(_) => panic!("{what}: the loader panicked; the text:\n{garbled}"),
-            Ok(Err(e)) => {
-                refused += 1;
-                assert_one_line_naming(&e.to_string(), path, &what);
-                continue;
-            }
-            Ok(Ok(scene)) => scene,
+        let (garbled, what) = garbled(seed, text, path, 3, &mut rng);
+        let Some(scene) = loaded(&what, &garbled, path, |t| parse_scene_str(t, *syntax, path))
+        else {
+            refused += 1;
+            continue;
         };
         rendered += 1;
         if std::panic::catch_unwind(|| assert_renders_equal(&scene, w, h)).is_err() {
@@ -206,23 +229,10 @@ fn garbled_topology_files_load_with_a_located_error_or_render_the_single_node_im
     for seed in tries {
         let mut rng = rng_for(seed ^ 0x7070);
         let (path, text) = &topologies[rng.below(topologies.len())];
-        let mut garbled = text.clone();
-        let mut what = Vec::new();
-        for _ in 0..1 + rng.below(2) {
-            let (g, w) = garble(&garbled, &mut rng);
-            garbled = g;
-            what.push(w);
-        }
-        let what = format!("seed {seed}: {} with {}", path.display(), what.join("; "));
-        let loaded = std::panic::catch_unwind(|| parse_topology(&garbled, path));
-        let topo = match loaded {
-            Err(_) => panic!("{what}: the loader panicked; the text:\n{garbled}"),
-            Ok(Err(e)) => {
-                refused += 1;
-                assert_one_line_naming(&e.to_string(), path, &what);
-                continue;
-            }
-            Ok(Ok(t)) => t,
+        let (garbled, what) = garbled(seed, text, path, 2, &mut rng);
+        let Some(topo) = loaded(&what, &garbled, path, |t| parse_topology(t, path)) else {
+            refused += 1;
+            continue;
         };
         rendered += 1;
         let d = topo.dimension.min(3);
