@@ -21,6 +21,7 @@ use crate::trace::RayJob;
 /// Host to node.
 #[derive(Serialize, Deserialize)]
 pub enum ToNode {
+    /// The node's share: the first message it gets, once per pass.
     Load(Box<Share>),
     /// A batch of paths over one link, in their wire form
     /// (`codec::pack`).
@@ -33,6 +34,7 @@ pub enum ToNode {
     /// modelled machine, not counted): the frame's stamp bounds the virtual
     /// time of whatever it will send next (`node::LAG_SLICES`).
     Clock {
+        /// The neighbour's node number.
         from: u16,
     },
 }
@@ -40,22 +42,32 @@ pub enum ToNode {
 /// Node to host.
 #[derive(Serialize, Deserialize)]
 pub enum ToHost {
+    /// The node has taken its share and is ready to trace.
     Loaded {
+        /// The sender's node number.
         node: u16,
     },
     /// Finished samples, in a batch (`codec::pack_done_into`).
     Done {
+        /// The sender's node number.
         node: u16,
+        /// The samples, packed.
         finished: super::codec::WireDone,
     },
     /// The node has started every sample it owns: this many.
     Generated {
+        /// The sender's node number.
         node: u16,
+        /// Samples started, background ones included.
         samples: u64,
     },
+    /// The node's counts and clocks, after `Stop`.
     Report(Box<NodeReport>),
+    /// The node stopped on an error (or an injected fault).
     Failed {
+        /// The failed node's number.
         node: u16,
+        /// What went wrong, for the user's message.
         error: String,
     },
 }
@@ -63,7 +75,10 @@ pub enum ToHost {
 /// A node's share: everything it will ever know about the scene.
 #[derive(Serialize, Deserialize)]
 pub struct Share {
+    /// This node's number, 0..2^dimension.
     pub node: u16,
+    /// The hypercube's dimension d: the node's links are to the nodes
+    /// whose numbers differ from its own in one of d bits.
     pub dimension: u32,
     /// The skeleton of every cell, the content of the owned ones
     /// (`CellStructure::restrict`).
@@ -73,6 +88,7 @@ pub struct Share {
     pub scene: Scene,
     /// The cell-to-node map: per region, per super cell, its owner.
     pub owner: [Vec<u16>; 2],
+    /// The image's size in pixels.
     pub width: u32,
     pub height: u32,
     /// Samples per pixel of this pass, and the index of its first sample
@@ -89,7 +105,9 @@ pub struct Share {
     /// may wait for the host's link at once: as many as fit the room the
     /// plan keeps for a window of paths.
     pub local_credits: u32,
+    /// The node's memory budget in bytes: what it holds never exceeds it.
     pub budget: u64,
+    /// The modelled machine's costs, for the node's virtual clock.
     pub link: LinkModel,
     /// How far (in slices of work) the node's clock may run ahead of its
     /// neighbours': an emulation parameter of the host's threads, not of
@@ -102,9 +120,14 @@ pub struct Share {
 /// The topology's cost model of computing and communicating.
 #[derive(Clone, Copy, Debug, Serialize, Deserialize)]
 pub struct LinkModel {
+    /// Seconds a message takes per hop, after it is sent.
     pub latency: f64,
+    /// Bytes per second on one link.
     pub bandwidth: f64,
+    /// Seconds of the sender's time per message (software start-up).
     pub overhead: f64,
+    /// Node speed relative to one host core (the clock advances by host
+    /// CPU seconds over it).
     pub compute_speed: f64,
 }
 
@@ -118,8 +141,11 @@ impl LinkModel {
 /// A path on its way to node `dest`, `hops` links so far.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Routed {
+    /// The node that owns the cell where the path's walk stopped.
     pub dest: u16,
+    /// Links crossed so far (at most the dimension: e-cube routing).
     pub hops: u8,
+    /// The path itself.
     pub path: Path,
 }
 
@@ -132,6 +158,7 @@ pub struct Path {
     pub origin: u16,
     /// Fixed-point sum of the contributions so far (`Film::quantize`).
     pub sum: [i64; 3],
+    /// The ray being traced.
     pub active: Active,
     /// Spawned rays not yet traced.
     pub stack: Vec<RayJob>,
@@ -144,6 +171,7 @@ pub struct Path {
 /// The ray being traced.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Active {
+    /// The ray, with its pixel, weight, depth and kind.
     pub job: RayJob,
     /// Its number within the path, in tracing order: with `sample`, it
     /// names the ray uniquely.
@@ -164,8 +192,11 @@ impl Path {
 /// A finished sample.
 #[derive(Clone, Copy, Debug, Serialize, Deserialize)]
 pub struct Finished {
+    /// `pixel · spp + k` (`Path::sample`).
     pub sample: u64,
+    /// The node that started it.
     pub origin: u16,
+    /// Fixed-point sum of its contributions (`Film::quantize`).
     pub sum: [i64; 3],
     /// False for samples of empty pixel areas, never traced.
     pub traced: bool,
@@ -173,6 +204,7 @@ pub struct Finished {
     /// finished there (`node::Node::credit_locally`), so the host returns
     /// none.
     pub credited: bool,
+    /// The root of the sample, or one of its leaves.
     pub part: Part,
 }
 
@@ -182,7 +214,10 @@ pub struct Finished {
 /// nothing, so the count is exact whatever order the pieces arrive in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Part {
+    /// The path the sample started as, with the number of leaves it sent
+    /// off.
     Root { forks: u16 },
+    /// A shadow ray of the sample that went on alone.
     Leaf,
 }
 
@@ -214,7 +249,9 @@ impl NodeReport {
 /// What a node reports when it stops.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct NodeReport {
+    /// The reporting node's number.
     pub node: u16,
+    /// Cells, super cells and primitives of its share that it owns.
     pub cells: u64,
     pub super_cells: u64,
     pub primitives: u64,
@@ -223,7 +260,10 @@ pub struct NodeReport {
     /// Of those, the cell structure's (`CellStructure::bytes`: the
     /// skeleton every node holds, and the owned cells' subtrees).
     pub structure_bytes: u64,
+    /// Its budget in bytes (`Share::budget`).
     pub memory_budget_bytes: u64,
+    /// The most bytes it held at once: the share, paths queued and in
+    /// flight, finished records, messages (never above the budget).
     pub peak_memory_bytes: u64,
     /// Rays traced here, whole or in part.
     pub rays_processed: u64,
@@ -231,16 +271,21 @@ pub struct NodeReport {
     /// and finished here.
     pub rays_created: [u64; 4],
     pub rays_finished: [u64; 4],
+    /// Messages of the modelled machine this node sent (frames, to
+    /// neighbours and the host), and their bytes.
     pub messages_sent: u64,
     pub bytes_sent: u64,
     /// Links crossed by the paths this node sent (its own and forwarded).
     pub hops: u64,
+    /// Paths this node passed on for others (e-cube routing).
     pub paths_forwarded: u64,
     /// Shadow rays sent off alone as leaves (`Part::Leaf`).
     pub leaves_sent: u64,
     /// The most rays any path's stack held here (`host::stack_bound`
     /// bounds it).
     pub max_stack_rays: u64,
+    /// The tracer's counts here (`TraceCounters`): ray-primitive tests,
+    /// tests a mailbox saved, cells entered, subtrees evaluated.
     pub intersection_tests: u64,
     pub mailbox_hits: u64,
     pub cells_visited: u64,
