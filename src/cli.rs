@@ -926,12 +926,7 @@ fn run_scale(a: ScaleArgs) -> Result<()> {
     if a.machine.dim.is_some() {
         return Err(Error::Usage("scale takes --dims, not --dim".into()));
     }
-    if !a.out.exists() {
-        std::fs::create_dir_all(&a.out).map_err(|e| Error::Write {
-            path: a.out.clone(),
-            message: e.to_string(),
-        })?;
-    } else if !a.out.is_dir() {
+    if a.out.exists() && !a.out.is_dir() {
         return Err(Error::Usage(format!(
             "--out {}: not a folder",
             a.out.display()
@@ -950,6 +945,12 @@ fn run_scale(a: ScaleArgs) -> Result<()> {
     pb.finish_and_clear();
     let rows = rows?;
     print!("{}", report::scale::table(&rows));
+    // Made only now, so that a refused scene or dimension leaves nothing
+    // behind (the table above is printed either way).
+    std::fs::create_dir_all(&a.out).map_err(|e| Error::Write {
+        path: a.out.clone(),
+        message: e.to_string(),
+    })?;
     let title = format!(
         "{} on {} ({}x{}, {} spp)",
         a.scene

@@ -215,28 +215,44 @@ pub fn measure(
         .iter()
         .map(|&d| topo.clone().with_overrides(Some(d), None))
         .collect::<Result<_>>()?;
-    let mut runs: Vec<Vec<MachineStats>> = vec![Vec::new(); dims.len()];
-    for _ in 0..repeat.max(1) {
-        for ((&d, t), of_d) in dims.iter().zip(&machines).zip(&mut runs) {
-            let (film, stats, _) = machine::render(scene, t, opts, &|_| {})?;
-            check(&film, d)?;
-            of_d.push(stats);
-            done += 1;
-            progress(done, total);
-        }
-    }
     let naive = MachineOptions {
         mapping: Mapping::EqualArea,
         ..opts.clone()
     };
+    // A dimension whose shares do not fit is named (the machine's message
+    // names the node and the memory it needs).
+    let at_d = |d: u32| {
+        move |e: Error| match e {
+            Error::Capacity(m) => Error::Capacity(format!("at d = {d}: {m}")),
+            Error::Render(m) => Error::Render(format!("at d = {d}: {m}")),
+            e => e,
+        }
+    };
+    let mut runs: Vec<Vec<MachineStats>> = vec![Vec::new(); dims.len()];
+    let mut equal_area: Vec<MachineStats> = Vec::new();
+    for round in 0..repeat.max(1) {
+        for ((&d, t), of_d) in dims.iter().zip(&machines).zip(&mut runs) {
+            let (film, stats, _) = machine::render(scene, t, opts, &|_| {}).map_err(at_d(d))?;
+            check(&film, d)?;
+            of_d.push(stats);
+            done += 1;
+            progress(done, total);
+            // The equal-area mapping once, in the first round: a share
+            // that does not fit it stops the experiment there, not after
+            // every round.
+            if round == 0 {
+                let (film, eq, _) = machine::render(scene, t, &naive, &|_| {}).map_err(at_d(d))?;
+                check(&film, d)?;
+                equal_area.push(eq);
+                done += 1;
+                progress(done, total);
+            }
+        }
+    }
     let Some(base) = runs.first() else {
         return Ok(rows);
     };
-    for ((&d, t), of_d) in dims.iter().zip(&machines).zip(&runs) {
-        let (film, eq, _) = machine::render(scene, t, &naive, &|_| {})?;
-        check(&film, d)?;
-        done += 1;
-        progress(done, total);
+    for (((&d, t), of_d), eq) in dims.iter().zip(&machines).zip(&runs).zip(&equal_area) {
         let wall = median(of_d.iter().map(|r| r.wall_seconds).collect());
         let virt = median(of_d.iter().map(|r| r.virtual_seconds).collect());
         // Counts are the same every run but the busy times are not: the

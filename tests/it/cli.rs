@@ -656,6 +656,35 @@ fn inspect_prints_the_subdivision_and_every_nodes_share() {
     }
 }
 
+/// A dimension whose shares do not fit the nodes stops `scale` before it
+/// writes anything, with exit 2 and one line naming the dimension, the
+/// node and the memory that would do; the folder `--out` names is not
+/// made.
+#[test]
+fn scale_refuses_a_dimension_that_does_not_fit_and_writes_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = util::repo("scenes/sphereflake3.nff");
+    let problems = check_refusal(
+        tmp.path(),
+        &[
+            "scale",
+            path_str(&scene),
+            "--dims",
+            "0..1",
+            "--node-memory",
+            "200KiB",
+            "--width",
+            "40",
+            "--height",
+            "30",
+            "--out",
+            "out",
+        ],
+        "at d = 0: node 0 needs",
+    );
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
 /// `hypercast scale` (issue 4): one render per dimension, a printed
 /// table, `scaling.csv` with a row per dimension whose counts hang
 /// together, and `scaling.png`.
