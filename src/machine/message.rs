@@ -251,7 +251,8 @@ impl NodeReport {
 pub struct NodeReport {
     /// The reporting node's number.
     pub node: u16,
-    /// Cells, super cells and primitives of its share that it owns.
+    /// The cells and super cells it owns, and the primitives its share
+    /// holds (those its cells reference).
     pub cells: u64,
     pub super_cells: u64,
     pub primitives: u64,
