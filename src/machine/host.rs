@@ -514,7 +514,7 @@ impl Plan {
                 mib(alone)
             )
         } else {
-            format!("use --dim {} or more, or --node-memory {need}", d + 1)
+            format!("{}, or --node-memory {need}", more_nodes_hint(d))
         };
         Err(Error::Capacity(format!(
             "node {worst} needs {} for its cells and {} for one path in flight per node and one finished sample, budget {}; {hint}",
@@ -523,6 +523,12 @@ impl Plan {
             mib(topo.node_memory)
         )))
     }
+}
+
+/// The part of a refusal at dimension `d` that asks for more nodes, as
+/// `render` takes them; `scale`, which takes `--dims`, says it its way.
+pub fn more_nodes_hint(d: u32) -> String {
+    format!("use --dim {} or more", d + 1)
 }
 
 /// Renders on the modelled machine, one pass of `opts.spp` samples per

@@ -223,7 +223,11 @@ pub fn measure(
     // names the node and the memory it needs).
     let at_d = |d: u32| {
         move |e: Error| match e {
-            Error::Capacity(m) => Error::Capacity(format!("at d = {d}: {m}")),
+            Error::Capacity(m) => {
+                let hint = format!("start --dims above {d}");
+                let m = m.replace(&machine::host::more_nodes_hint(d), &hint);
+                Error::Capacity(format!("at d = {d}: {m}"))
+            }
             Error::Render(m) => Error::Render(format!("at d = {d}: {m}")),
             e => e,
         }

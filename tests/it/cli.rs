@@ -664,24 +664,27 @@ fn inspect_prints_the_subdivision_and_every_nodes_share() {
 fn scale_refuses_a_dimension_that_does_not_fit_and_writes_nothing() {
     let tmp = tempfile::tempdir().unwrap();
     let scene = util::repo("scenes/sphereflake3.nff");
-    let problems = check_refusal(
-        tmp.path(),
-        &[
-            "scale",
-            path_str(&scene),
-            "--dims",
-            "0..1",
-            "--node-memory",
-            "200KiB",
-            "--width",
-            "40",
-            "--height",
-            "30",
-            "--out",
-            "out",
-        ],
-        "at d = 0: node 0 needs",
+    let mut args = vec![
+        "scale",
+        path_str(&scene),
+        "--dims",
+        "0..1",
+        "--node-memory",
+        "200KiB",
+        "--width",
+        "40",
+        "--height",
+        "30",
+    ];
+    let o = run(tmp.path(), &args);
+    // Its hint speaks of --dims, which scale takes, not --dim.
+    let err = stderr(&o);
+    assert!(
+        err.contains("start --dims above 0, or --node-memory") && !err.contains("--dim "),
+        "{err}"
     );
+    args.extend(["--out", "out"]);
+    let problems = check_refusal(tmp.path(), &args, "at d = 0: node 0 needs");
     assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
 
