@@ -153,8 +153,30 @@ pub fn stack_bound(scene: &Scene) -> usize {
     scene.lights.len() + s + scene.max_depth as usize * s.saturating_sub(1)
 }
 
+/// A byte count for a refusal: MiB to two decimals, or, below a tenth of
+/// a MiB (a test's tiny nodes), KiB or bytes, so that it never reads 0.00.
 fn mib(b: u64) -> String {
-    format!("{:.2} MiB", b as f64 / 1048576.0)
+    if b >= 104_858 {
+        format!("{:.2} MiB", b as f64 / 1048576.0)
+    } else if b >= 1024 {
+        format!("{:.1} KiB", b as f64 / 1024.0)
+    } else if b == 1 {
+        "1 byte".into()
+    } else {
+        format!("{b} bytes")
+    }
+}
+
+/// The `--node-memory` that holds `b` bytes, rounded up in the unit `mib`
+/// would write it in, so that the size named is enough.
+fn enough_memory(b: u64) -> String {
+    if b >= 104_858 {
+        format!("{:.2}MiB", (b as f64 / 1048576.0 * 100.0).ceil() / 100.0)
+    } else if b >= 1024 {
+        format!("{:.1}KiB", (b as f64 / 1024.0 * 10.0).ceil() / 10.0)
+    } else {
+        format!("{b}")
+    }
 }
 
 /// Times the build may be made again to split heavy super cells (`Plan`).
@@ -458,10 +480,7 @@ impl Plan {
             .expect("a plan has a share per node, and a hypercube has 2^d >= 1 nodes");
         let rays = (n + 1) * self.path_bytes;
         // Rounded up, so that the memory named is enough.
-        let need = format!(
-            "{:.2}MiB",
-            ((most + rays) as f64 / 1048576.0 * 100.0).ceil() / 100.0
-        );
+        let need = enough_memory(most + rays);
         let owned: Vec<(usize, u32)> = (0..2)
             .flat_map(|r| {
                 self.owner[r]
@@ -981,6 +1000,34 @@ impl Run {
 mod tests {
     use super::*;
     use crate::scene::load::{SceneSyntax, parse_scene_str};
+
+    /// A refusal's sizes never read 0.00, and the memory it asks for,
+    /// read back as `--node-memory` reads it, holds what was needed.
+    #[test]
+    fn refusal_sizes_are_legible_and_enough() {
+        for b in [
+            0,
+            1,
+            1023,
+            1024,
+            1025,
+            90_001,
+            104_857,
+            104_858,
+            4_718_592,
+            5_452_595,
+            1 << 40,
+        ] {
+            let text = mib(b);
+            assert!(b == 0 || !text.starts_with("0.0"), "{b}: {text}");
+            let need = enough_memory(b);
+            let back = crate::machine::parse_size(&need).unwrap_or(0);
+            assert!(back >= b, "{b}: {need} reads back as {back}");
+        }
+        assert_eq!(mib(4_718_592), "4.50 MiB");
+        assert_eq!(mib(90_000), "87.9 KiB");
+        assert_eq!(mib(500), "500 bytes");
+    }
 
     fn scene(materials: &str, lights: usize, max_depth: u32) -> Scene {
         let lights = vec!["(position: (0, 0, 5))"; lights].join(", ");
