@@ -292,11 +292,16 @@ fn default_output(scene: &Path) -> PathBuf {
     p
 }
 
-pub(crate) fn check_writable_dir(path: &Path) -> Result<()> {
-    let dir = match path.parent() {
+/// The folder a file path names its file in (`.` for a bare name).
+fn folder_of(path: &Path) -> &Path {
+    match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
-    };
+    }
+}
+
+pub(crate) fn check_writable_dir(path: &Path) -> Result<()> {
+    let dir = folder_of(path);
     if !dir.is_dir() {
         return Err(Error::Usage(format!(
             "{}: the folder {} does not exist",
@@ -343,11 +348,7 @@ fn same_file(a: &Path, b: &Path) -> bool {
     }
     // One does not exist yet: compare where each would be.
     let place = |p: &Path| -> Option<PathBuf> {
-        let dir = match p.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d,
-            _ => Path::new("."),
-        };
-        Some(dir.canonicalize().ok()?.join(p.file_name()?))
+        Some(folder_of(p).canonicalize().ok()?.join(p.file_name()?))
     };
     matches!((place(a), place(b)), (Some(x), Some(y)) if x == y)
 }

@@ -153,30 +153,37 @@ pub fn stack_bound(scene: &Scene) -> usize {
     scene.lights.len() + s + scene.max_depth as usize * s.saturating_sub(1)
 }
 
-/// A byte count for a refusal: MiB to two decimals, or, below a tenth of
-/// a MiB (a test's tiny nodes), KiB or bytes, so that it never reads 0.00.
-fn mib(b: u64) -> String {
+/// The unit a refusal writes `b` bytes in: MiB to two decimals, or, below
+/// a tenth of a MiB (a test's tiny nodes), KiB to one or whole bytes, so
+/// that no size reads 0.00. Its bytes, name and decimals.
+fn refusal_unit(b: u64) -> (f64, &'static str, usize) {
     if b >= 104_858 {
-        format!("{:.2} MiB", b as f64 / 1048576.0)
+        (1048576.0, "MiB", 2)
     } else if b >= 1024 {
-        format!("{:.1} KiB", b as f64 / 1024.0)
-    } else if b == 1 {
-        "1 byte".into()
+        (1024.0, "KiB", 1)
     } else {
-        format!("{b} bytes")
+        (1.0, "bytes", 0)
     }
 }
 
-/// The `--node-memory` that holds `b` bytes, rounded up in the unit `mib`
-/// would write it in, so that the size named is enough.
-fn enough_memory(b: u64) -> String {
-    if b >= 104_858 {
-        format!("{:.2}MiB", (b as f64 / 1048576.0 * 100.0).ceil() / 100.0)
-    } else if b >= 1024 {
-        format!("{:.1}KiB", (b as f64 / 1024.0 * 10.0).ceil() / 10.0)
-    } else {
-        format!("{b}")
+/// A byte count for a refusal (`refusal_unit`).
+fn mib(b: u64) -> String {
+    if b == 1 {
+        return "1 byte".into();
     }
+    let (unit, name, decimals) = refusal_unit(b);
+    format!("{:.*} {name}", decimals, b as f64 / unit)
+}
+
+/// The `--node-memory` that holds `b` bytes, rounded up in the unit `mib`
+/// writes it in, so that the size named is enough.
+fn enough_memory(b: u64) -> String {
+    let (unit, name, decimals) = refusal_unit(b);
+    let step = 10f64.powi(decimals as i32);
+    let value = (b as f64 / unit * step).ceil() / step;
+    // `--node-memory` takes bytes without a unit.
+    let name = if decimals == 0 { "" } else { name };
+    format!("{value:.decimals$}{name}")
 }
 
 /// Times the build may be made again to split heavy super cells (`Plan`).

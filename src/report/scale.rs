@@ -232,24 +232,24 @@ pub fn measure(
             e => e,
         }
     };
+    // One render, checked against the first and counted.
+    let mut run = |d: u32, t: &Topology, o: &MachineOptions| -> Result<MachineStats> {
+        let (film, stats, _) = machine::render(scene, t, o, &|_| {}).map_err(at_d(d))?;
+        check(&film, d)?;
+        done += 1;
+        progress(done, total);
+        Ok(stats)
+    };
     let mut runs: Vec<Vec<MachineStats>> = vec![Vec::new(); dims.len()];
     let mut equal_area: Vec<MachineStats> = Vec::new();
     for round in 0..repeat.max(1) {
         for ((&d, t), of_d) in dims.iter().zip(&machines).zip(&mut runs) {
-            let (film, stats, _) = machine::render(scene, t, opts, &|_| {}).map_err(at_d(d))?;
-            check(&film, d)?;
-            of_d.push(stats);
-            done += 1;
-            progress(done, total);
+            of_d.push(run(d, t, opts)?);
             // The equal-area mapping once, in the first round: a share
             // that does not fit it stops the experiment there, not after
             // every round.
             if round == 0 {
-                let (film, eq, _) = machine::render(scene, t, &naive, &|_| {}).map_err(at_d(d))?;
-                check(&film, d)?;
-                equal_area.push(eq);
-                done += 1;
-                progress(done, total);
+                equal_area.push(run(d, t, &naive)?);
             }
         }
     }
