@@ -39,7 +39,7 @@ pub enum Error {
     /// rays in flight, does not fit a node's memory budget: refused before
     /// rendering, with the numbers and what to change.
     #[error("{0}")]
-    Capacity(String),
+    Capacity(Refusal),
     /// Occurs when a render or experiment fails after its input was accepted
     /// (a node failed, a budget could not be met at run time).
     #[error("{0}")]
@@ -47,6 +47,68 @@ pub enum Error {
     /// Occurs when an output file cannot be written; nothing partial is left.
     #[error("{}: cannot write: {message}", path.display())]
     Write { path: PathBuf, message: String },
+}
+
+/// A share that does not fit a node (`Error::Capacity`): the numbers, and
+/// what would make it fit. Kept in parts, not as one line, so that an
+/// experiment over several dimensions (`scale --dims`) can name the one
+/// refused and ask for more nodes in its own options.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Refusal {
+    /// Which node needs how much for what, against which budget.
+    pub numbers: String,
+    /// The dimension refused, named by a run over several (`scale`): more
+    /// nodes are then asked for as `--dims` takes them, not as `--dim`.
+    pub among_dims: Option<u32>,
+    /// What would make the share fit.
+    pub remedy: Remedy,
+}
+
+/// What would make a refused share fit.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Remedy {
+    /// Any dimension above `dimension`, or `memory` per node (as
+    /// `--node-memory` reads it).
+    MoreNodes { dimension: u32, memory: String },
+    /// Only `memory` per node; `why` says why more nodes cannot help,
+    /// unless there are no more (the largest dimension).
+    MoreMemory { why: Option<String>, memory: String },
+}
+
+impl Refusal {
+    /// The memory per node that would fit the share on the same dimension,
+    /// as `--node-memory` reads it: every remedy names it.
+    pub fn memory(&self) -> &str {
+        match &self.remedy {
+            Remedy::MoreNodes { memory, .. } | Remedy::MoreMemory { memory, .. } => memory,
+        }
+    }
+}
+
+impl std::fmt::Display for Refusal {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if let Some(d) = self.among_dims {
+            write!(f, "at d = {d}: ")?;
+        }
+        write!(f, "{}; ", self.numbers)?;
+        match (&self.remedy, self.among_dims) {
+            (Remedy::MoreNodes { dimension, memory }, None) => write!(
+                f,
+                "use --dim {} or more, or --node-memory {memory}",
+                dimension + 1
+            ),
+            (Remedy::MoreNodes { dimension, memory }, Some(_)) => {
+                write!(
+                    f,
+                    "start --dims above {dimension}, or --node-memory {memory}"
+                )
+            }
+            (Remedy::MoreMemory { why, memory }, _) => match why {
+                Some(why) => write!(f, "{why}: use --node-memory {memory}"),
+                None => write!(f, "use --node-memory {memory}"),
+            },
+        }
+    }
 }
 
 impl Error {

@@ -17,7 +17,7 @@ use super::node;
 use super::topology::{MAX_DIMENSION, Topology};
 use super::transport::{HostLinks, Link, NodeLinks, channels};
 use crate::cells::{CellOptions, CellStructure};
-use crate::error::{Error, Result};
+use crate::error::{Error, Refusal, Remedy, Result};
 use crate::render::{self, AaSummary, Adaptive, Pass, RenderStats, Sampling, TraceCounters};
 use crate::scene::Scene;
 use crate::trace::{Film, RayCounts, RayJob, prefault};
@@ -525,36 +525,43 @@ impl Plan {
                     .unwrap_or(0)
             })
         };
-        let hint = if d >= MAX_DIMENSION {
-            format!("use --node-memory {need}")
-        } else if let Some(b) = Some(skeleton()).filter(|&b| b + more_rays > topo.node_memory) {
-            format!(
-                "every node holds the skeleton of all cells ({}), so more nodes cannot help: use --node-memory {need}",
-                mib(b)
-            )
-        } else if owned.len() <= 1 {
-            format!("its one super cell cannot be split over more nodes: use --node-memory {need}")
-        } else if let Some(alone) = heaviest_alone().filter(|&b| b + more_rays > topo.node_memory) {
-            format!(
-                "one of its super cells alone needs {}, and a super cell is never split over nodes: use --node-memory {need}",
-                mib(alone)
-            )
-        } else {
-            format!("{}, or --node-memory {need}", more_nodes_hint(d))
+        let more_memory = |why: Option<String>| Remedy::MoreMemory {
+            why,
+            memory: need.clone(),
         };
-        Err(Error::Capacity(format!(
-            "node {worst} needs {} for its cells and {} for one path in flight per node and one finished sample, budget {}; {hint}",
-            mib(most),
-            mib(rays),
-            mib(topo.node_memory)
-        )))
+        let remedy = if d >= MAX_DIMENSION {
+            more_memory(None)
+        } else if let Some(b) = Some(skeleton()).filter(|&b| b + more_rays > topo.node_memory) {
+            more_memory(Some(format!(
+                "every node holds the skeleton of all cells ({}), so more nodes cannot help",
+                mib(b)
+            )))
+        } else if owned.len() <= 1 {
+            more_memory(Some(
+                "its one super cell cannot be split over more nodes".into(),
+            ))
+        } else if let Some(alone) = heaviest_alone().filter(|&b| b + more_rays > topo.node_memory) {
+            more_memory(Some(format!(
+                "one of its super cells alone needs {}, and a super cell is never split over nodes",
+                mib(alone)
+            )))
+        } else {
+            Remedy::MoreNodes {
+                dimension: d,
+                memory: need.clone(),
+            }
+        };
+        Err(Error::Capacity(Refusal {
+            numbers: format!(
+                "node {worst} needs {} for its cells and {} for one path in flight per node and one finished sample, budget {}",
+                mib(most),
+                mib(rays),
+                mib(topo.node_memory)
+            ),
+            among_dims: None,
+            remedy,
+        }))
     }
-}
-
-/// The part of a refusal at dimension `d` that asks for more nodes, as
-/// `render` takes them; `scale`, which takes `--dims`, says it its way.
-pub fn more_nodes_hint(d: u32) -> String {
-    format!("use --dim {} or more", d + 1)
 }
 
 /// Renders on the modelled machine, one pass of `opts.spp` samples per

@@ -15,7 +15,7 @@ use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 use super::image_io::write_atomically;
-use crate::error::{Error, Result};
+use crate::error::{Error, Refusal, Result};
 use crate::machine::message::NodeReport;
 use crate::machine::{self, MachineOptions, MachineStats, Mapping, Topology};
 use crate::scene::Scene;
@@ -223,11 +223,10 @@ pub fn measure(
     // names the node and the memory it needs).
     let at_d = |d: u32| {
         move |e: Error| match e {
-            Error::Capacity(m) => {
-                let hint = format!("start --dims above {d}");
-                let m = m.replace(&machine::host::more_nodes_hint(d), &hint);
-                Error::Capacity(format!("at d = {d}: {m}"))
-            }
+            Error::Capacity(r) => Error::Capacity(Refusal {
+                among_dims: Some(d),
+                ..r
+            }),
             Error::Render(m) => Error::Render(format!("at d = {d}: {m}")),
             e => e,
         }

@@ -7,7 +7,7 @@
 use std::path::PathBuf;
 
 use hypercast::cells::CellOptions;
-use hypercast::error::Error;
+use hypercast::error::{Error, Refusal, Remedy};
 use hypercast::machine::{self, MachineOptions, Mapping, Topology};
 use hypercast::render::{self, Accel, Adaptive, RenderOptions};
 use hypercast::scene::{Scene, load_scene};
@@ -370,9 +370,9 @@ fn random_scenes_on_random_dimensions_equal_one_node() {
                     outcome = Some((film, stats, summary, budget));
                     break;
                 }
-                Err(Error::Capacity(msg)) => assert!(
-                    msg.contains("budget"),
-                    "seed {seed}: a refusal without its numbers: {msg}"
+                Err(Error::Capacity(r)) => assert!(
+                    r.numbers.contains("budget"),
+                    "seed {seed}: a refusal without its numbers: {r}"
                 ),
                 Err(e) => panic!("seed {seed}, d = {d}, budget {budget}: {e}"),
             }
@@ -520,7 +520,7 @@ fn a_refusal_names_what_would_fit() {
         hypercast::scene::load::compile_model(&model, std::path::Path::new("random.ron")).unwrap();
     let o = MachineOptions::new(32, 32, 1);
     let refusal = |t: &Topology| match machine::render(&scene, t, &o, &|_| {}) {
-        Err(Error::Capacity(msg)) => msg,
+        Err(Error::Capacity(r)) => r.to_string(),
         Err(e) => panic!("not a capacity error: {e}"),
         Ok(_) => panic!("fits on {} nodes of {} bytes", t.nodes(), t.node_memory),
     };
@@ -536,6 +536,10 @@ fn a_refusal_names_what_would_fit() {
     );
     // The memory named is enough, on the same dimension.
     let named = msg.rsplit("--node-memory ").next().unwrap();
+    let Err(Error::Capacity(r)) = machine::render(&scene, &on(2, 256 << 10), &o, &|_| {}) else {
+        panic!("refused once, then not")
+    };
+    assert_eq!(r.memory(), named);
     let bytes = machine::parse_size(named).unwrap_or_else(|e| panic!("{named}: {e}"));
     let (_, stats, _) = machine::render(&scene, &on(2, bytes), &o, &|_| {})
         .unwrap_or_else(|e| panic!("with the named {named}: {e}"));
@@ -544,6 +548,29 @@ fn a_refusal_names_what_would_fit() {
     let flake = load_scene(&repo("scenes/sphereflake4.nff")).unwrap();
     let e = machine::render(&flake, &topo(0), &o, &|_| {}).expect_err("refused at d = 0");
     assert!(e.to_string().contains("use --dim 1 or more"), "{e}");
+    let Error::Capacity(r) = e else {
+        panic!("not a capacity error: {e}")
+    };
+    assert!(
+        matches!(&r.remedy, Remedy::MoreNodes { dimension: 0, memory } if *memory == r.memory()),
+        "{r:?}"
+    );
+    // A run over several dimensions names the one refused and asks for
+    // more nodes in its own option.
+    let among = Refusal {
+        among_dims: Some(0),
+        ..r.clone()
+    }
+    .to_string();
+    assert!(
+        among.starts_with("at d = 0: node 0 needs")
+            && among.ends_with(&format!(
+                "; start --dims above 0, or --node-memory {}",
+                r.memory()
+            ))
+            && !among.contains("--dim "),
+        "{among}"
+    );
 }
 
 /// Renders on `topology`; a share too large for its nodes (the level-4
@@ -560,10 +587,10 @@ fn machine_fitting(
     };
     match go(topology) {
         Ok(r) => r,
-        Err(Error::Capacity(msg)) => {
+        Err(Error::Capacity(r)) => {
             assert!(
                 topology.dimension <= 1,
-                "refused at d = {}: {msg}",
+                "refused at d = {}: {r}",
                 topology.dimension
             );
             let bigger = topology
