@@ -479,7 +479,12 @@ fn draw(buf: &mut [u8], title: &str, rows: &[ScaleRow]) -> std::result::Result<(
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(56)
-        .build_cartesian_2d(x.range.clone(), (bottom..top).log_scale())
+        .build_cartesian_2d(
+            x.range.clone(),
+            (bottom..top)
+                .log_scale()
+                .with_key_points(powers_of_two(bottom, top)),
+        )
         .map_err(|x| e(&x))?;
     mesh(&mut c, &x)?;
     let ideal: Vec<(f64, f64)> = rows
@@ -583,6 +588,15 @@ fn linear_panel(
 }
 
 /// A panel's grid and axes, the horizontal one labelled by node count.
+/// The speedup axis's ticks: the powers of two between `lo` and `hi`, the
+/// node counts the ideal line passes (a decade's nine ticks crowded the
+/// top of the axis, and plotters drew its last one twice).
+fn powers_of_two(lo: f64, hi: f64) -> Vec<f64> {
+    let first = lo.log2().ceil() as i32;
+    let last = hi.log2().floor() as i32;
+    (first..=last).map(|k| 2f64.powi(k)).collect()
+}
+
 fn mesh<Y>(c: &mut Chart<'_, '_, Y>, x: &Axis) -> std::result::Result<(), String>
 where
     Y: Ranged<ValueType = f64> + ValueFormatter<f64>,
@@ -653,6 +667,16 @@ mod tests {
         assert!(parse_dims("5..2").is_err());
         assert!(parse_dims("x").is_err());
         assert!(parse_dims("0..11").is_err());
+    }
+
+    #[test]
+    fn the_speedup_axis_is_ticked_at_node_counts() {
+        assert_eq!(
+            powers_of_two(0.4, 40.0),
+            vec![0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0]
+        );
+        assert_eq!(powers_of_two(0.8, 2.5), vec![1.0, 2.0]);
+        assert_eq!(powers_of_two(1.0, 2.0), vec![1.0, 2.0]);
     }
 
     fn node(busy_seconds: f64, cells_visited: u64, intersection_tests: u64) -> NodeReport {
