@@ -688,6 +688,48 @@ fn scale_refuses_a_dimension_that_does_not_fit_and_writes_nothing() {
     assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
 
+/// The README's examples of an error (a `$ hypercast ...` line followed by
+/// `hypercast: error: ...`) are what the binary prints today, word for
+/// word: the README is where a new user first meets them.
+#[test]
+fn the_readmes_example_errors_are_what_the_binary_prints() {
+    let readme = std::fs::read_to_string(util::repo("README.md")).unwrap();
+    let lines: Vec<&str> = readme.lines().collect();
+    let mut checked = 0;
+    for pair in lines.windows(2) {
+        let (Some(command), Some(_)) = (
+            pair[0].strip_prefix("$ hypercast "),
+            pair[1].strip_prefix("hypercast: error: "),
+        ) else {
+            continue;
+        };
+        // Inputs from the project's folder; the run in an empty one, so
+        // that a render that failed to refuse leaves its file there.
+        let repo = util::repo("");
+        let args: Vec<String> = command
+            .split_whitespace()
+            .map(|a| {
+                let path = repo.join(a);
+                if path.exists() && !a.starts_with('-') {
+                    path_str(&path).to_owned()
+                } else {
+                    a.to_owned()
+                }
+            })
+            .collect();
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let tmp = tempfile::tempdir().unwrap();
+        let problems = check_refusal(tmp.path(), &args, pair[1]);
+        assert!(
+            problems.is_empty(),
+            "$ hypercast {command}\n{}",
+            problems.join("\n")
+        );
+        checked += 1;
+    }
+    assert!(checked >= 1, "no example error found in README.md");
+}
+
 /// `hypercast scale` (issue 4): one render per dimension, a printed
 /// table, `scaling.csv` with a row per dimension whose counts hang
 /// together, and `scaling.png`.
