@@ -666,6 +666,40 @@ fn case_22_translated_far_away_renders_the_same() {
     }
 }
 
+/// Rays that start far from what they hit: the level-2 sphereflake inside
+/// a reflecting sphere of radius 1e6 (the mutant of seed 60955 of
+/// `bundled_scenes_with_extreme_numbers_...`). Rays reflected back from
+/// its inside cross the floor, seen edge-on behind the eye (its camera
+/// looks level), whose super cell of the paper's fewest-splits BSP was
+/// 5e-12 wide: a walk from 1e6 away crossed it in no `t` at all, and the
+/// cell after it did not hold the floor, so 24 rays of 12x9 pixels went
+/// on to the far wall. Cells now hold what lies within the walk's
+/// rounding (`cells::walk_rounding`), which scales with the scene's reach.
+#[test]
+fn rays_from_a_million_away_find_a_floor_seen_edge_on() {
+    use hypercast::scene::{SceneSyntax, parse_scene_str};
+    let path = util::repo("scenes/sphereflake2.nff");
+    let mut text = std::fs::read_to_string(&path).unwrap();
+    for (from, to) in [
+        ("at 0 0 0", "at 1e30 0 0"),
+        (
+            "s 0.8026084423958546 0.2814712819167448 0.11111111111111113 0.05555555555555555",
+            "s 0.8026084423958546 0.2814712819167448 0.11111111111111113 1e6",
+        ),
+        (
+            "s 0.6074872842789857 -0.33532175730307756 -0.11111111111111094 0.05555555555555555",
+            "s 0.6074872842789857 -1e6 -0.11111111111111094 0.05555555555555555",
+        ),
+    ] {
+        assert_eq!(text.matches(from).count(), 1, "{from}");
+        text = text.replace(from, to);
+    }
+    let scene = parse_scene_str(&text, SceneSyntax::Nff, &path).unwrap();
+    for (w, h) in [(12, 9), (40, 30)] {
+        assert_renders_equal(&scene, w, h);
+    }
+}
+
 #[test]
 fn case_23_scaled_tiny_and_huge_renders_the_same() {
     let home = assert_renders_equal(&shifted_scene(|p| p, 1.0), 100, 100).0;
