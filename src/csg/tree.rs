@@ -152,12 +152,21 @@ impl CsgTree {
     /// when nothing of the primitive can be seen (`ROBUSTNESS.md` case 14).
     /// Iterative: parents are visited before children by walking the
     /// children-before-parents arena backwards.
+    ///
+    /// An ancestor cuts a child by its box inflated as for culling (1e-9 of
+    /// its magnitude), not by its exact box: a primitive's computed spans
+    /// may reach past its exact box by their rounding, and Roth, which
+    /// culls by the inflated boxes, then still meets the child there. A
+    /// sphere of radius 1e30 reaching to 3 from the eye was entered, to
+    /// rounding, at the eye: the box subtracted from it, cut by its exact
+    /// box to a sliver, was left out of every cell, and the cells saw the
+    /// sphere's far side where Roth saw the box's face.
     pub fn minimal_boxes(&self) -> Vec<Aabb> {
         let mut mini = vec![Aabb::EMPTY; self.nodes.len()];
         let Some(root) = self.root else { return mini };
         mini[root.index()] = self.bounds[root.index()];
         for i in (0..self.nodes.len()).rev() {
-            let m = mini[i];
+            let m = mini[i].inflated(1e-9);
             for c in self.children_of(NodeId(i as u32)) {
                 mini[c.index()] = self.bounds[c.index()].intersect(&m);
             }

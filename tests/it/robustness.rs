@@ -700,6 +700,29 @@ fn rays_from_a_million_away_find_a_floor_seen_edge_on() {
     }
 }
 
+/// A sphere of radius 1e30 whose surface passes 3 from the eye, minus a
+/// box beside it (`scenes/small/difference.ron` so mutated; seed 98740 of
+/// `bundled_scenes_with_extreme_numbers_...`). Its surface there is known
+/// to some 1e14 only, and the eye's rays enter it, to rounding, at the
+/// eye: Roth then sees the box's face where the rays leave the sphere
+/// into the box. The cells cut the box by the sphere's exact box (Algorithm
+/// 1), which left it a sliver of zero width, in no cell, and saw the
+/// sphere's far side 1e30 away. An ancestor now cuts a child by its box
+/// inflated as Roth's culling inflates it (`CsgTree::minimal_boxes`).
+#[test]
+fn a_difference_cut_by_a_sphere_known_to_1e14_renders_as_roth_does() {
+    let path = util::repo("scenes/small/difference.ron");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let from = "Sphere(center: (0, 0, 0), radius: 1)";
+    assert_eq!(text.matches(from).count(), 1);
+    let text = text.replace(from, "Sphere(center: (-1e30, 0, 0), radius: 1e30)");
+    let scene = hypercast::scene::parse_scene_str(&text, hypercast::scene::SceneSyntax::Ron, &path)
+        .unwrap();
+    for (w, h) in [(12, 9), (64, 48)] {
+        assert_renders_equal(&scene, w, h);
+    }
+}
+
 #[test]
 fn case_23_scaled_tiny_and_huge_renders_the_same() {
     let home = assert_renders_equal(&shifted_scene(|p| p, 1.0), 100, 100).0;
