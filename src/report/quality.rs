@@ -7,6 +7,7 @@
 use std::io::Write;
 use std::path::Path;
 
+use plotters::coord::combinators::WithKeyPoints;
 use plotters::prelude::*;
 
 use crate::error::{Error, Result};
@@ -296,6 +297,15 @@ fn log_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
     decade * 0.999..(hi * 1.3).max(decade * 10.0)
 }
 
+/// A log axis over `r`, ticked by `plot::log_ticks`.
+fn log_axis(r: &std::ops::Range<f64>) -> WithKeyPoints<LogCoord<f64>> {
+    let (bold, light) = super::plot::log_ticks(r.start, r.end);
+    r.clone()
+        .log_scale()
+        .with_key_points(bold)
+        .with_light_points(light)
+}
+
 /// A tick label with two significant digits and no float noise
 /// (0.30000000000000004 reads 0.3).
 fn tick(v: f64) -> String {
@@ -342,7 +352,7 @@ fn draw_plot(buf: &mut [u8], title: &str, points: &[Point]) -> std::result::Resu
         .margin(16)
         .x_label_area_size(48)
         .y_label_area_size(72)
-        .build_cartesian_2d(xr.log_scale(), yr.log_scale())
+        .build_cartesian_2d(log_axis(&xr), log_axis(&yr))
         .map_err(|x| e(&x))?;
     chart
         .configure_mesh()
