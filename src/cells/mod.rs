@@ -960,10 +960,6 @@ struct CutCell {
     zlo: f32,
 }
 
-/// Super cells of at least this many listed primitives in all make the
-/// depth partitions worth a second thread by default (a thread costs tens
-/// of microseconds; the sphereflake of level 4 at 512x512 lists 13,812,
-/// cut in 9 ms on one thread).
 /// How far the walk may misplace a point of a ray, in world units: the
 /// rounding of a camera coordinate (`View::point`) and of a crossing
 /// (`traverse`) is some ulps of the largest magnitude they combine: the
@@ -987,6 +983,10 @@ fn walk_rounding(prim_box: &[Aabb], eye: Vec3) -> f64 {
 /// Relative rounding of the walk (`walk_rounding`).
 const WALK_ROUNDING: f64 = 1e-12;
 
+/// Super cells of at least this many listed primitives in all make the
+/// depth partitions worth a second thread by default (a thread costs tens
+/// of microseconds; the sphereflake of level 4 at 512x512 lists 13,812,
+/// cut in 9 ms on one thread).
 const PARALLEL_CUT_PRIMS: usize = 4096;
 
 /// Cuts every super cell of a region into cells along depth (section 3.3,
