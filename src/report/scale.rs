@@ -587,7 +587,6 @@ fn linear_panel(
     curves(&mut c, rows, series, legend)
 }
 
-/// A panel's grid and axes, the horizontal one labelled by node count.
 /// The speedup axis's ticks: the powers of two between `lo` and `hi`, the
 /// node counts the ideal line passes (a decade's nine ticks crowded the
 /// top of the axis, and plotters drew its last one twice).
@@ -597,6 +596,7 @@ fn powers_of_two(lo: f64, hi: f64) -> Vec<f64> {
     (first..=last).map(|k| 2f64.powi(k)).collect()
 }
 
+/// A panel's grid and axes, the horizontal one labelled by node count.
 fn mesh<Y>(c: &mut Chart<'_, '_, Y>, x: &Axis) -> std::result::Result<(), String>
 where
     Y: Ranged<ValueType = f64> + ValueFormatter<f64>,
