@@ -10,7 +10,7 @@ use std::path::Path;
 use plotters::coord::combinators::WithKeyPoints;
 use plotters::prelude::*;
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::render::Adaptive;
 
 use super::ImageMetrics;
@@ -255,28 +255,11 @@ pub fn write_csv(path: &Path, points: &[Point]) -> Result<()> {
 /// The plot's size in pixels.
 const PLOT_SIZE: (u32, u32) = (900, 640);
 
-/// The plot's font: DejaVu Sans cut down to ASCII (`assets/fonts/`),
-/// compiled in, so that plots need no system fonts.
-static FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans-ASCII.ttf");
-
 /// Writes the plot of error against wall time (log-log) to `path` (PNG),
 /// atomically: each family's host-thread points, and the Pareto front as
 /// a line through ringed points.
 pub fn write_plot(path: &Path, title: &str, points: &[Point]) -> Result<()> {
-    let err = |message: String| Error::Write {
-        path: path.to_path_buf(),
-        message,
-    };
-    let (w, h) = PLOT_SIZE;
-    let mut buf = vec![255u8; w as usize * h as usize * 3];
-    draw_plot(&mut buf, title, points).map_err(err)?;
-    let img = image::RgbImage::from_raw(w, h, buf).ok_or_else(|| err("plot size".into()))?;
-    write_atomically(path, |f| {
-        let mut out = std::io::BufWriter::new(f);
-        img.write_to(&mut out, image::ImageFormat::Png)
-            .map_err(|e| e.to_string())?;
-        out.flush().map_err(|e| e.to_string())
-    })
+    super::plot::write_png(path, PLOT_SIZE, |buf| draw_plot(buf, title, points))
 }
 
 /// A log axis range holding `values`: from the power of ten below them
@@ -329,9 +312,6 @@ const FAMILIES: [(&str, RGBColor); 3] = [
 ];
 
 fn draw_plot(buf: &mut [u8], title: &str, points: &[Point]) -> std::result::Result<(), String> {
-    // Registering is idempotent; the font is ours, so it parses.
-    plotters::style::register_font("sans-serif", FontStyle::Normal, FONT)
-        .map_err(|_| "the bundled plot font does not parse".to_string())?;
     let e = |x: &dyn std::fmt::Display| x.to_string();
     let curve: Vec<Point> = points
         .iter()
