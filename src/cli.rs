@@ -13,7 +13,7 @@ use crate::cells::{CellOptions, CellStructure, SegmentChoice};
 use crate::error::{Error, Result};
 use crate::machine::{self, MachineOptions, MachineStats, Mapping, Topology};
 use crate::render::{self, AaSummary, Accel, Adaptive, RenderOptions, RenderStats};
-use crate::report::{self, ImageMetrics, stats::num};
+use crate::report::{self, ImageMetrics, image_io::folder_of, stats::num};
 use crate::scene::{self, Scene};
 use crate::trace::RayKind;
 
@@ -290,14 +290,6 @@ fn default_output(scene: &Path) -> PathBuf {
     let mut p = PathBuf::from(stem);
     p.set_extension("png");
     p
-}
-
-/// The folder a file path names its file in (`.` for a bare name).
-fn folder_of(path: &Path) -> &Path {
-    match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    }
 }
 
 pub(crate) fn check_writable_dir(path: &Path) -> Result<()> {

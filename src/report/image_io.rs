@@ -177,6 +177,15 @@ pub fn write_image(path: &Path, width: u32, height: u32, linear: &[[f32; 3]]) ->
     })
 }
 
+/// The folder a file path names its file in (`.` for a bare name): where
+/// it is written, and what `cli` checks before a run.
+pub fn folder_of(path: &Path) -> &Path {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    }
+}
+
 /// Writes `path` through a temporary file in the same folder and a rename,
 /// the commit point: until it, `path` is untouched, and a failure leaves
 /// nothing behind (the temporary file is removed when dropped).
@@ -188,10 +197,7 @@ where
         path: path.to_path_buf(),
         message,
     };
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
+    let dir = folder_of(path);
     let mut tmp = tempfile::Builder::new()
         .prefix(".hypercast-")
         .suffix(".tmp")
