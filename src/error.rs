@@ -57,32 +57,24 @@ pub enum Error {
 pub struct Refusal {
     /// Which node needs how much for what, against which budget.
     pub numbers: String,
+    /// The memory per node that would fit the share on the same
+    /// dimension, as `--node-memory` reads it: every remedy names it.
+    pub memory: String,
     /// The dimension refused, named by a run over several (`scale`): more
     /// nodes are then asked for as `--dims` takes them, not as `--dim`.
     pub among_dims: Option<u32>,
-    /// What would make the share fit.
+    /// What would make the share fit besides `memory`.
     pub remedy: Remedy,
 }
 
-/// What would make a refused share fit.
+/// What would make a refused share fit, besides more memory per node.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Remedy {
-    /// Any dimension above `dimension`, or `memory` per node (as
-    /// `--node-memory` reads it).
-    MoreNodes { dimension: u32, memory: String },
-    /// Only `memory` per node; `why` says why more nodes cannot help,
-    /// unless there are no more (the largest dimension).
-    MoreMemory { why: Option<String>, memory: String },
-}
-
-impl Refusal {
-    /// The memory per node that would fit the share on the same dimension,
-    /// as `--node-memory` reads it: every remedy names it.
-    pub fn memory(&self) -> &str {
-        match &self.remedy {
-            Remedy::MoreNodes { memory, .. } | Remedy::MoreMemory { memory, .. } => memory,
-        }
-    }
+    /// Any dimension above `dimension`.
+    MoreNodes { dimension: u32 },
+    /// Nothing else; `why` says why more nodes cannot help, unless there
+    /// are no more (the largest dimension).
+    MoreMemory { why: Option<String> },
 }
 
 impl std::fmt::Display for Refusal {
@@ -91,22 +83,23 @@ impl std::fmt::Display for Refusal {
             write!(f, "at d = {d}: ")?;
         }
         write!(f, "{}; ", self.numbers)?;
+        let memory = &self.memory;
         match (&self.remedy, self.among_dims) {
-            (Remedy::MoreNodes { dimension, memory }, None) => write!(
+            (Remedy::MoreNodes { dimension }, None) => write!(
                 f,
                 "use --dim {} or more, or --node-memory {memory}",
                 dimension + 1
             ),
-            (Remedy::MoreNodes { dimension, memory }, Some(_)) => {
+            (Remedy::MoreNodes { dimension }, Some(_)) => {
                 write!(
                     f,
                     "start --dims above {dimension}, or --node-memory {memory}"
                 )
             }
-            (Remedy::MoreMemory { why, memory }, _) => match why {
-                Some(why) => write!(f, "{why}: use --node-memory {memory}"),
-                None => write!(f, "use --node-memory {memory}"),
-            },
+            (Remedy::MoreMemory { why: Some(why) }, _) => {
+                write!(f, "{why}: use --node-memory {memory}")
+            }
+            (Remedy::MoreMemory { why: None }, _) => write!(f, "use --node-memory {memory}"),
         }
     }
 }

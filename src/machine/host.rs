@@ -525,10 +525,7 @@ impl Plan {
                     .unwrap_or(0)
             })
         };
-        let more_memory = |why: Option<String>| Remedy::MoreMemory {
-            why,
-            memory: need.clone(),
-        };
+        let more_memory = |why: Option<String>| Remedy::MoreMemory { why };
         let remedy = if d >= MAX_DIMENSION {
             more_memory(None)
         } else if let Some(b) = Some(skeleton()).filter(|&b| b + more_rays > topo.node_memory) {
@@ -546,10 +543,7 @@ impl Plan {
                 mib(alone)
             )))
         } else {
-            Remedy::MoreNodes {
-                dimension: d,
-                memory: need.clone(),
-            }
+            Remedy::MoreNodes { dimension: d }
         };
         Err(Error::Capacity(Refusal {
             numbers: format!(
@@ -558,6 +552,7 @@ impl Plan {
                 mib(rays),
                 mib(topo.node_memory)
             ),
+            memory: need,
             among_dims: None,
             remedy,
         }))
