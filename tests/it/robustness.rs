@@ -677,24 +677,20 @@ fn case_22_translated_far_away_renders_the_same() {
 /// rounding (`cells::walk_rounding`), which scales with the scene's reach.
 #[test]
 fn rays_from_a_million_away_find_a_floor_seen_edge_on() {
-    use hypercast::scene::{SceneSyntax, parse_scene_str};
-    let path = util::repo("scenes/sphereflake2.nff");
-    let mut text = std::fs::read_to_string(&path).unwrap();
-    for (from, to) in [
-        ("at 0 0 0", "at 1e30 0 0"),
-        (
-            "s 0.8026084423958546 0.2814712819167448 0.11111111111111113 0.05555555555555555",
-            "s 0.8026084423958546 0.2814712819167448 0.11111111111111113 1e6",
-        ),
-        (
-            "s 0.6074872842789857 -0.33532175730307756 -0.11111111111111094 0.05555555555555555",
-            "s 0.6074872842789857 -1e6 -0.11111111111111094 0.05555555555555555",
-        ),
-    ] {
-        assert_eq!(text.matches(from).count(), 1, "{from}");
-        text = text.replace(from, to);
-    }
-    let scene = parse_scene_str(&text, SceneSyntax::Nff, &path).unwrap();
+    let scene = bundled_with(
+        "scenes/sphereflake2.nff",
+        &[
+            ("at 0 0 0", "at 1e30 0 0"),
+            (
+                "s 0.8026084423958546 0.2814712819167448 0.11111111111111113 0.05555555555555555",
+                "s 0.8026084423958546 0.2814712819167448 0.11111111111111113 1e6",
+            ),
+            (
+                "s 0.6074872842789857 -0.33532175730307756 -0.11111111111111094 0.05555555555555555",
+                "s 0.6074872842789857 -1e6 -0.11111111111111094 0.05555555555555555",
+            ),
+        ],
+    );
     for (w, h) in [(12, 9), (40, 30)] {
         assert_renders_equal(&scene, w, h);
     }
@@ -711,16 +707,30 @@ fn rays_from_a_million_away_find_a_floor_seen_edge_on() {
 /// inflated as Roth's culling inflates it (`CsgTree::minimal_boxes`).
 #[test]
 fn a_difference_cut_by_a_sphere_known_to_1e14_renders_as_roth_does() {
-    let path = util::repo("scenes/small/difference.ron");
-    let text = std::fs::read_to_string(&path).unwrap();
-    let from = "Sphere(center: (0, 0, 0), radius: 1)";
-    assert_eq!(text.matches(from).count(), 1);
-    let text = text.replace(from, "Sphere(center: (-1e30, 0, 0), radius: 1e30)");
-    let scene = hypercast::scene::parse_scene_str(&text, hypercast::scene::SceneSyntax::Ron, &path)
-        .unwrap();
+    let scene = bundled_with(
+        "scenes/small/difference.ron",
+        &[(
+            "Sphere(center: (0, 0, 0), radius: 1)",
+            "Sphere(center: (-1e30, 0, 0), radius: 1e30)",
+        )],
+    );
     for (w, h) in [(12, 9), (64, 48)] {
         assert_renders_equal(&scene, w, h);
     }
+}
+
+/// A bundled scene file with each `from` (found exactly once) replaced by
+/// its `to`, loaded as its extension says.
+fn bundled_with(rel: &str, edits: &[(&str, &str)]) -> Scene {
+    use hypercast::scene::{SceneSyntax, parse_scene_str};
+    let path = util::repo(rel);
+    let mut text = std::fs::read_to_string(&path).unwrap();
+    for (from, to) in edits {
+        assert_eq!(text.matches(from).count(), 1, "{rel}: {from}");
+        text = text.replace(from, to);
+    }
+    let syntax = SceneSyntax::from_path(&path).unwrap();
+    parse_scene_str(&text, syntax, &path).unwrap_or_else(|e| panic!("{rel} edited: {e}"))
 }
 
 #[test]
