@@ -115,12 +115,21 @@ pub fn sample_offset_from(pixel: u32, k: u32, spp: u32, first: u32) -> (f64, f64
 /// (A grid of `⌈√spp⌉` columns left strata of the last row empty for 3, 5,
 /// 7, 8, 32, ... samples, so the row above stood for too much of the pixel:
 /// 32 samples converged to another image than 16 did.)
+///
+/// Asked once per sample: the search goes down from `⌊√spp⌋`, so it ends
+/// at once for square counts and within a few steps for most others.
 fn strata(spp: u32) -> (u32, u32) {
-    let ny = (1..=spp)
-        .take_while(|d| d * d <= spp)
-        .filter(|d| spp.is_multiple_of(*d))
-        .last()
-        .unwrap_or(1);
+    let spp = spp.max(1);
+    let mut ny = (spp as f64).sqrt() as u32;
+    while u64::from(ny) * u64::from(ny) > u64::from(spp) {
+        ny -= 1;
+    }
+    while u64::from(ny + 1) * u64::from(ny + 1) <= u64::from(spp) {
+        ny += 1;
+    }
+    while !spp.is_multiple_of(ny) {
+        ny -= 1;
+    }
     (spp / ny, ny)
 }
 
@@ -417,7 +426,14 @@ mod tests {
         for spp in 1..=300 {
             let (nx, ny) = strata(spp);
             assert!(nx * ny == spp && nx >= ny, "{spp}: {nx} x {ny}");
+            // As square as the divisors allow: no divisor lies between.
+            assert!(
+                (ny + 1..=nx - 1).all(|d| !spp.is_multiple_of(d) || d * d > spp),
+                "{spp}: {nx} x {ny}"
+            );
         }
+        assert_eq!(strata(65536), (256, 256));
+        assert_eq!(strata(65521), (65521, 1));
     }
 
     /// Each pass's samples are one per stratum of equal area, whatever
