@@ -648,6 +648,11 @@ pub struct ShadowFacts {
     /// Per light, whether it surely lies outside the scene's solid
     /// (`outside_the_solid`).
     pub clear_lights: Vec<bool>,
+    /// Per light, the radius of a ball around it that no primitive's
+    /// minimal box reaches (`free_radius`): a shadow ray's last stretch to
+    /// its light, inside that ball, meets nothing, and its walk leaves it
+    /// out (`CellTracer::walk_shadow`).
+    pub free_radius: Vec<f64>,
     /// The minimal boxes (inflated) of the primitives whose material lets
     /// light through, or None when there are more than `MAX_GLASS`: a
     /// shadow ray that meets none of them meets only opaque surfaces.
@@ -809,6 +814,32 @@ fn leaf_side(prim: &crate::csg::Primitive, p: crate::geom::Vec3, size: f64) -> S
     Side::Out
 }
 
+/// The radius of a ball around `p` that no primitive's minimal box
+/// reaches, with margins far above the rounding of the distances and of
+/// the crossings a ray might be given there: each box inflated by a
+/// relative 1e-6 (the cells hold boxes inflated by 1e-9, and grown by the
+/// walk's rounding, `walk_rounding`), and the radius taken 1e-6 short of
+/// the nearest and 1e-9 of the scene's reach shorter (a crossing computed
+/// from a point that far off is placed to about 1e-16 of it). Zero where
+/// `p` is in or next to a box, or the numbers are not finite.
+fn free_radius(scene: &Scene, minimal: &[Aabb], p: Vec3) -> f64 {
+    let tree = &scene.tree;
+    let (mut nearest, mut reach) = (f64::INFINITY, p.abs().max_element());
+    for (n, b) in tree.nodes.iter().zip(minimal) {
+        if !matches!(n, CsgNode::Leaf(_)) || b.is_empty() {
+            continue;
+        }
+        reach = reach
+            .max(b.min.abs().max_element())
+            .max(b.max.abs().max_element());
+        let b = b.inflated(1e-6);
+        let gap = (b.min - p).max(p - b.max).max(Vec3::ZERO);
+        nearest = nearest.min(gap.length());
+    }
+    let r = nearest * (1.0 - 1e-6) - 1e-9 * reach;
+    if r.is_finite() && r > 0.0 { r } else { 0.0 }
+}
+
 impl ShadowFacts {
     fn of(scene: &Scene, minimal: &[Aabb], cache: bool) -> ShadowFacts {
         let tree = &scene.tree;
@@ -845,9 +876,15 @@ impl ShadowFacts {
             .iter()
             .map(|l| outside_the_solid(scene, minimal, l.position))
             .collect();
+        let free_radius = scene
+            .lights
+            .iter()
+            .map(|l| free_radius(scene, minimal, l.position))
+            .collect();
         ShadowFacts {
             exposed,
             clear_lights,
+            free_radius,
             glass: (glass.len() <= MAX_GLASS).then_some(glass),
             cache,
         }
@@ -881,6 +918,7 @@ impl ShadowFacts {
     fn bytes(&self) -> usize {
         self.exposed.len() * 8
             + self.clear_lights.len()
+            + self.free_radius.len() * std::mem::size_of::<f64>()
             + self
                 .glass
                 .as_ref()

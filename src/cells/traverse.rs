@@ -1098,6 +1098,12 @@ impl CellTracer<'_> {
     /// box of a primitive that transmits. Otherwise (a light inside or near
     /// the solid, a glass box on the way, more than `MAX_GLASS` such
     /// primitives) this is `walk`.
+    ///
+    /// Either way, a ray that ends at a light is walked only up to the ball
+    /// around the light that no primitive's minimal box reaches
+    /// (`ShadowFacts::free_radius`): outside its minimal box a primitive
+    /// changes nothing (Algorithm 1), so no boundary lies in that ball,
+    /// and the walk over what is left finds what the whole walk would.
     pub fn walk_shadow(
         &mut self,
         ray: &Ray,
@@ -1118,8 +1124,15 @@ impl CellTracer<'_> {
         t_max: f64,
         from: Option<WalkPoint>,
     ) -> Walk {
-        let Some(light) = self.shadow_light(ray, t_min, t_max) else {
-            return self.walk(ray, t_min, t_max, from);
+        // The stretch next to the light, where no primitive is, is left
+        // out of the walk (`ShadowFacts::free_radius`).
+        let end = self.light_at_end(ray, t_max);
+        let t_walk = end.map_or(t_max, |i| self.short_of_light(ray, t_max, i));
+        if t_walk.partial_cmp(&t_min) != Some(std::cmp::Ordering::Greater) {
+            return Walk::Miss;
+        }
+        let Some(light) = end.filter(|&i| self.takes_short(ray, t_min, t_max, i)) else {
+            return self.walk(ray, t_min, t_walk, from);
         };
         self.occluding = true;
         self.light = light;
@@ -1130,7 +1143,7 @@ impl CellTracer<'_> {
             self.occluding = false;
             return Walk::Hit(h);
         }
-        let walk = self.walk(ray, t_min, t_max, from);
+        let walk = self.walk(ray, t_min, t_walk, from);
         self.occluding = false;
         // A stop by a primitive the cache may not keep empties its entry:
         // the rays after this one are likelier stopped by the same.
@@ -1145,14 +1158,10 @@ impl CellTracer<'_> {
         walk
     }
 
-    /// The light a shadow ray over `(t_min, t_max)` goes to, when
-    /// `walk_shadow` may take it short: the ray ends at that light (up to
-    /// the rounding of its direction, which is the light's position less
-    /// the ray's origin), the light lies surely outside the solid, and the
-    /// ray meets no box of a primitive that lets light through.
-    fn shadow_light(&self, ray: &Ray, t_min: f64, t_max: f64) -> Option<usize> {
-        let facts = &self.cs.shadows;
-        let glass = facts.glass.as_ref()?;
+    /// The light a ray over `(.., t_max)` ends at, up to the rounding of
+    /// its direction (for a shadow ray, the light's position less the
+    /// ray's origin), if it ends at one.
+    fn light_at_end(&self, ray: &Ray, t_max: f64) -> Option<usize> {
         if !t_max.is_finite() {
             return None;
         }
@@ -1164,13 +1173,43 @@ impl CellTracer<'_> {
             .map(|l| (l.position - end).length_squared())
             .enumerate()
             .min_by(|a, b| a.1.total_cmp(&b.1))?;
+        (d2 <= self.end_tolerance(ray, i).powi(2)).then_some(i)
+    }
+
+    /// How far from light `i` a ray's end may be and still be taken to
+    /// end at it (`light_at_end`).
+    fn end_tolerance(&self, ray: &Ray, i: usize) -> f64 {
         let at = self.scene.lights[i].position;
-        let tol = 1e-9 * (at.abs().max_element() + ray.origin.abs().max_element());
+        1e-9 * (at.abs().max_element() + ray.origin.abs().max_element())
+    }
+
+    /// Where a ray ending at light `i` at `t_max` enters the ball around
+    /// the light that no primitive reaches (`ShadowFacts::free_radius`,
+    /// less the tolerance of its end): past that, it meets nothing.
+    fn short_of_light(&self, ray: &Ray, t_max: f64, i: usize) -> f64 {
+        let r =
+            self.cs.shadows.free_radius.get(i).copied().unwrap_or(0.0) - self.end_tolerance(ray, i);
+        let cut = t_max - r / ray.dir.length();
+        if r > 0.0 && cut.is_finite() && cut < t_max {
+            cut
+        } else {
+            t_max
+        }
+    }
+
+    /// Whether `walk_shadow` may take a ray over `(t_min, t_max)` that
+    /// ends at light `i` short: the light lies surely outside the solid,
+    /// and the ray meets no box of a primitive that lets light through.
+    fn takes_short(&self, ray: &Ray, t_min: f64, t_max: f64, i: usize) -> bool {
+        let facts = &self.cs.shadows;
+        let Some(glass) = facts.glass.as_ref() else {
+            return false;
+        };
         let meets = |g: &Aabb| {
             g.ray_interval(ray)
                 .is_some_and(|(a, b)| b >= t_min && a <= t_max)
         };
-        (d2 <= tol * tol && facts.clear_lights[i] && !glass.iter().any(meets)).then_some(i)
+        facts.clear_lights[i] && !glass.iter().any(meets)
     }
 
     /// The shadow cache's answer for a shadow walk's ray: a hit if it
