@@ -824,14 +824,12 @@ fn leaf_side(prim: &crate::csg::Primitive, p: crate::geom::Vec3, size: f64) -> S
 /// `p` is in or next to a box, or the numbers are not finite.
 fn free_radius(scene: &Scene, minimal: &[Aabb], p: Vec3) -> f64 {
     let tree = &scene.tree;
-    let (mut nearest, mut reach) = (f64::INFINITY, p.abs().max_element());
+    let reach = largest_coordinate(minimal).max(p.abs().max_element());
+    let mut nearest = f64::INFINITY;
     for (n, b) in tree.nodes.iter().zip(minimal) {
         if !matches!(n, CsgNode::Leaf(_)) || b.is_empty() {
             continue;
         }
-        reach = reach
-            .max(b.min.abs().max_element())
-            .max(b.max.abs().max_element());
         let b = b.inflated(1e-6);
         let gap = (b.min - p).max(p - b.max).max(Vec3::ZERO);
         nearest = nearest.min(gap.length());
@@ -1009,13 +1007,19 @@ struct CutCell {
 /// the scenes of everyday sizes (3e-11 on the bundled ones); 1e-6 around
 /// a sphere of radius 1e6.
 fn walk_rounding(prim_box: &[Aabb], eye: Vec3) -> f64 {
-    let reach = prim_box
+    let margin = (largest_coordinate(prim_box) + eye.abs().max_element()) * WALK_ROUNDING;
+    if margin.is_finite() { margin } else { 0.0 }
+}
+
+/// The largest magnitude of a coordinate of the non-empty boxes: the
+/// scene's reach, on which rounding scales (`walk_rounding`,
+/// `free_radius`).
+fn largest_coordinate(boxes: &[Aabb]) -> f64 {
+    boxes
         .iter()
         .filter(|b| !b.is_empty())
         .map(|b| b.min.abs().max(b.max.abs()).max_element())
-        .fold(0.0, f64::max);
-    let margin = (reach + eye.abs().max_element()) * WALK_ROUNDING;
-    if margin.is_finite() { margin } else { 0.0 }
+        .fold(0.0, f64::max)
 }
 
 /// Relative rounding of the walk (`walk_rounding`).
