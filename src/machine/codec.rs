@@ -5,7 +5,8 @@
 //! 3.0.0 is a deliberate compile_error release, hence the pin to 2).
 //! Messages travel in envelopes of stamped frames (`append_stamped`).
 //!
-//! Paths travel in a compact form (`pack`, `unpack`) that leaves out what
+//! Paths travel in a compact form (`pack`, `unpack`; a node writes it
+//! with `RaysOut`, packing as it encodes) that leaves out what
 //! the receiving node can recompute exactly from what it already holds:
 //! a shadow ray's direction (its light's position minus its origin) and
 //! `t_max`, every ray's pixel (the path's sample says it), a walk point's
@@ -233,8 +234,14 @@ impl WireBatch {
     }
 }
 
+/// A path on the wire. Decoded, its stack is a vector (`S` =
+/// `Vec<WireJob>`); encoded by a node, the stack is packed as it is
+/// written (`StackOut`). Both are the same bytes: a sequence. (A small
+/// vector holding four rays in place, to spare the decoder an allocation
+/// per path, made the jagged ball's d = 5 render 3-4% slower: the larger
+/// paths cost more to move than the allocations saved.)
 #[derive(Clone, Debug, Serialize, Deserialize)]
-struct WireRouted {
+struct WireRouted<S = Vec<WireJob>> {
     dest: u16,
     hops: u8,
     sample: u64,
@@ -247,7 +254,38 @@ struct WireRouted {
     t_min: Option<f64>,
     at: Option<WireAt>,
     active: WireJob,
-    stack: Vec<WireJob>,
+    stack: S,
+}
+
+impl<S> WireRouted<S> {
+    fn map_stack<T>(self, f: impl FnOnce(S) -> T) -> WireRouted<T> {
+        let WireRouted {
+            dest,
+            hops,
+            sample,
+            origin,
+            sum,
+            flags,
+            number,
+            t_min,
+            at,
+            active,
+            stack,
+        } = self;
+        WireRouted {
+            dest,
+            hops,
+            sample,
+            origin,
+            sum,
+            flags,
+            number,
+            t_min,
+            at,
+            active,
+            stack: f(stack),
+        }
+    }
 }
 
 /// A walk point without its super cell: `cell << 2 | clipped << 1 |
@@ -422,45 +460,134 @@ fn unpack_job(w: WireJob, pixel: u32, ctx: &PathContext) -> Result<RayJob, Strin
 
 /// Paths in their wire form.
 pub fn pack(paths: &[Routed], ctx: &PathContext) -> WireBatch {
-    let spp = u64::from(ctx.spp.max(1));
     WireBatch(
         paths
             .iter()
-            .map(|r| {
-                let p = &r.path;
-                let pixel = p.sample / spp;
-                let a = &p.active;
-                WireRouted {
-                    dest: r.dest,
-                    hops: r.hops,
-                    sample: p.sample,
-                    origin: p.origin,
-                    sum: p.sum,
-                    flags: u32::from(p.forks) << 1 | u32::from(p.leaf),
-                    number: a.number,
-                    t_min: (a.t_min.to_bits() != 0f64.to_bits()).then_some(a.t_min),
-                    at: a.at.map(|w| WireAt {
-                        cell: w.cell << 2
-                            | u32::from(w.clipped) << 1
-                            | (w.region == Region::Back) as u32,
-                        entry: pack_entry(&w, &a.job.ray, ctx),
-                    }),
-                    active: pack_job(&a.job, pixel, ctx),
-                    stack: p.stack.iter().map(|j| pack_job(j, pixel, ctx)).collect(),
-                }
-            })
+            .map(|r| wire_routed(r, ctx).map_stack(|st| st.jobs().collect()))
             .collect(),
     )
+}
+
+/// `ToNode::Rays(pack(paths, ctx))` as bincode writes it, packed while it
+/// is written: the same bytes (`tests::paths_unpack_exactly_as_packed_and_smaller`),
+/// without the batch and a vector per path's stack built first and
+/// dropped. At d = 5 the allocator and copying took a tenth of the
+/// machine's CPU, much of it in such intermediate vectors.
+pub struct RaysOut<'a, 'c> {
+    pub paths: &'a [Routed],
+    pub ctx: &'a PathContext<'c>,
+}
+
+/// `ToNode::Rays`'s place among `ToNode`'s variants, as serde numbers them
+/// (reordering the variants fails the test that `RaysOut` cites).
+const RAYS_VARIANT: u32 = 1;
+
+impl Serialize for RaysOut<'_, '_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_newtype_variant("ToNode", RAYS_VARIANT, "Rays", &BatchOut(self))
+    }
+}
+
+/// `WireBatch`'s newtype, streamed (`RaysOut`).
+struct BatchOut<'r, 'a, 'c>(&'r RaysOut<'a, 'c>);
+
+impl Serialize for BatchOut<'_, '_, '_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let RaysOut { paths, ctx } = self.0;
+        s.serialize_newtype_struct(
+            "WireBatch",
+            &SeqOut(paths.iter().map(|r| wire_routed(r, ctx))),
+        )
+    }
+}
+
+/// A sequence written from an iterator of known length (bincode writes
+/// the length first).
+struct SeqOut<I>(I);
+
+impl<I, T> Serialize for SeqOut<I>
+where
+    I: Iterator<Item = T> + ExactSizeIterator + Clone,
+    T: Serialize,
+{
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_seq(self.0.clone())
+    }
+}
+
+/// A path's stack, packed as it is written (`wire_routed`).
+#[derive(Clone, Copy)]
+struct StackOut<'a, 'c> {
+    jobs: &'a [RayJob],
+    pixel: u64,
+    ctx: &'a PathContext<'c>,
+}
+
+impl StackOut<'_, '_> {
+    fn jobs(&self) -> impl ExactSizeIterator<Item = WireJob> + Clone + '_ {
+        self.jobs.iter().map(|j| pack_job(j, self.pixel, self.ctx))
+    }
+}
+
+impl Serialize for StackOut<'_, '_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        SeqOut(self.jobs()).serialize(s)
+    }
+}
+
+/// A path's wire form, its stack still to be packed: the one place that
+/// decides what a path leaves out (`pack`, `RaysOut`).
+fn wire_routed<'a, 'c>(r: &'a Routed, ctx: &'a PathContext<'c>) -> WireRouted<StackOut<'a, 'c>> {
+    let spp = u64::from(ctx.spp.max(1));
+    let p = &r.path;
+    let pixel = p.sample / spp;
+    let a = &p.active;
+    WireRouted {
+        dest: r.dest,
+        hops: r.hops,
+        sample: p.sample,
+        origin: p.origin,
+        sum: p.sum,
+        flags: u32::from(p.forks) << 1 | u32::from(p.leaf),
+        number: a.number,
+        t_min: (a.t_min.to_bits() != 0f64.to_bits()).then_some(a.t_min),
+        at: a.at.map(|w| WireAt {
+            cell: w.cell << 2 | u32::from(w.clipped) << 1 | (w.region == Region::Back) as u32,
+            entry: pack_entry(&w, &a.job.ray, ctx),
+        }),
+        active: pack_job(&a.job, pixel, ctx),
+        stack: StackOut {
+            jobs: &p.stack,
+            pixel,
+            ctx,
+        },
+    }
 }
 
 /// The paths of a batch, exactly as they were packed; an error for a
 /// batch that names a light, kind or cell the node does not have.
 pub fn unpack(batch: WireBatch, ctx: &PathContext) -> Result<Vec<Routed>, String> {
+    let mut paths = Vec::with_capacity(batch.0.len());
+    unpack_each(batch, ctx, |r| {
+        paths.push(r);
+        Ok(())
+    })?;
+    Ok(paths)
+}
+
+/// `unpack`, handing each path to `take` as it is unpacked: a node puts
+/// them in its queue one by one, without a vector of them between (at d
+/// = 5 the allocator and copying were a tenth of the machine's CPU, much
+/// of it in such intermediate vectors). Stops at the first error, of the
+/// batch or of `take`; the paths before it have been taken.
+pub fn unpack_each(
+    batch: WireBatch,
+    ctx: &PathContext,
+    mut take: impl FnMut(Routed) -> Result<(), String>,
+) -> Result<(), String> {
     let spp = u64::from(ctx.spp.max(1));
-    batch
-        .0
-        .into_iter()
-        .map(|w| {
+    for w in batch.0 {
+        let r = (|| {
             let pixel = u32::try_from(w.sample / spp)
                 .map_err(|_| format!("sample {} is past every pixel", w.sample))?;
             let job = unpack_job(w.active, pixel, ctx)?;
@@ -512,8 +639,10 @@ pub fn unpack(batch: WireBatch, ctx: &PathContext) -> Result<Vec<Routed>, String
                     leaf: w.flags & 1 == 1,
                 },
             })
-        })
-        .collect()
+        })()?;
+        take(r)?;
+    }
+    Ok(())
 }
 
 /// A batch of finished samples as it travels (`pack_done_into`).
@@ -671,6 +800,7 @@ pub fn for_each_done(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::machine::message::ToNode;
 
     fn pack_done(node: u16, finished: &[Finished]) -> WireDone {
         let mut w = WireDone::default();
@@ -908,6 +1038,17 @@ mod tests {
         );
         let batch = pack(&paths, &ctx);
         let bytes = encode(&batch).unwrap();
+        // A node writes the same bytes without the batch (`RaysOut`).
+        let streamed = encode(&RaysOut {
+            paths: &paths,
+            ctx: &ctx,
+        })
+        .unwrap();
+        assert_eq!(streamed, encode(&ToNode::Rays(batch.clone())).unwrap());
+        let ToNode::Rays(again) = decode::<ToNode>(&streamed).unwrap() else {
+            panic!("streamed paths decode as another message");
+        };
+        assert_eq!(format!("{again:?}"), format!("{batch:?}"));
         let back_again = unpack(decode(&bytes).unwrap(), &ctx).unwrap();
         assert_eq!(format!("{paths:?}"), format!("{back_again:?}"));
         for (a, b) in paths.iter().zip(&back_again) {

@@ -26,8 +26,8 @@ use std::collections::{BinaryHeap, VecDeque};
 use std::time::{Duration, Instant};
 
 use super::codec::{
-    PathContext, WireDone, append_stamped, decode_envelope, for_each_frame, pack, pack_done_into,
-    restamp, unpack,
+    PathContext, RaysOut, WireDone, append_stamped, decode_envelope, for_each_frame,
+    pack_done_into, restamp, unpack_each,
 };
 use super::message::{
     Active, Finished, LinkModel, NodeReport, Part, Path, Routed, Share, ToHost, ToNode,
@@ -786,12 +786,12 @@ impl<'a> Node<'a> {
             ToNode::Rays(batch) => {
                 // Held as `path_bytes` until now: hold what they take.
                 let estimate = batch.path_bytes();
-                let paths = unpack(batch, &self.path_context())?;
-                self.hold(paths.iter().map(|r| r.path.bytes()).sum());
+                let ctx = self.path_context();
+                unpack_each(batch, &ctx, |r| {
+                    self.hold(r.path.bytes());
+                    self.arrive(r, arrival)
+                })?;
                 self.release(estimate);
-                for r in paths {
-                    self.arrive(r, arrival)?;
-                }
             }
             ToNode::Credit(n) => self.arriving_credits.push_back((arrival, n)),
             ToNode::Stop => self.stopping = true,
@@ -1202,9 +1202,16 @@ impl<'a> Node<'a> {
             return Ok(());
         }
         let held: usize = paths.iter().map(|r| r.path.bytes()).sum();
-        // Packing is encoding: the link model's, not the node's compute.
-        let body = self.excluding(|n| ToNode::Rays(pack(&paths, &n.path_context())));
-        self.enqueue(i, &body)?;
+        // Packed as it is encoded (`RaysOut`): the link model's work, not
+        // the node's compute (`enqueue` takes it off).
+        let ctx = self.path_context();
+        self.enqueue(
+            i,
+            &RaysOut {
+                paths: &paths,
+                ctx: &ctx,
+            },
+        )?;
         self.release(held);
         Ok(())
     }
