@@ -257,37 +257,6 @@ struct WireRouted<S = Vec<WireJob>> {
     stack: S,
 }
 
-impl<S> WireRouted<S> {
-    fn map_stack<T>(self, f: impl FnOnce(S) -> T) -> WireRouted<T> {
-        let WireRouted {
-            dest,
-            hops,
-            sample,
-            origin,
-            sum,
-            flags,
-            number,
-            t_min,
-            at,
-            active,
-            stack,
-        } = self;
-        WireRouted {
-            dest,
-            hops,
-            sample,
-            origin,
-            sum,
-            flags,
-            number,
-            t_min,
-            at,
-            active,
-            stack: f(stack),
-        }
-    }
-}
-
 /// A walk point without its super cell: `cell << 2 | clipped << 1 |
 /// region`, and where the ray entered it.
 #[derive(Clone, Copy, Debug, Serialize, Deserialize)]
@@ -463,7 +432,7 @@ pub fn pack(paths: &[Routed], ctx: &PathContext) -> WireBatch {
     WireBatch(
         paths
             .iter()
-            .map(|r| wire_routed(r, ctx).map_stack(|st| st.jobs().collect()))
+            .map(|r| wire_routed(r, ctx, |st| st.jobs().collect()))
             .collect(),
     )
 }
@@ -496,7 +465,7 @@ impl Serialize for BatchOut<'_, '_, '_> {
         let RaysOut { paths, ctx } = self.0;
         s.serialize_newtype_struct(
             "WireBatch",
-            &SeqOut(paths.iter().map(|r| wire_routed(r, ctx))),
+            &SeqOut(paths.iter().map(|r| wire_routed(r, ctx, |st| st))),
         )
     }
 }
@@ -535,9 +504,14 @@ impl Serialize for StackOut<'_, '_> {
     }
 }
 
-/// A path's wire form, its stack still to be packed: the one place that
-/// decides what a path leaves out (`pack`, `RaysOut`).
-fn wire_routed<'a, 'c>(r: &'a Routed, ctx: &'a PathContext<'c>) -> WireRouted<StackOut<'a, 'c>> {
+/// A path's wire form, its stack made by `stack` from the stack still to
+/// be packed (`StackOut`): the one place that decides what a path leaves
+/// out (`pack`, `RaysOut`).
+fn wire_routed<'a, 'c, S>(
+    r: &'a Routed,
+    ctx: &'a PathContext<'c>,
+    stack: impl FnOnce(StackOut<'a, 'c>) -> S,
+) -> WireRouted<S> {
     let spp = u64::from(ctx.spp.max(1));
     let p = &r.path;
     let pixel = p.sample / spp;
@@ -556,11 +530,11 @@ fn wire_routed<'a, 'c>(r: &'a Routed, ctx: &'a PathContext<'c>) -> WireRouted<St
             entry: pack_entry(&w, &a.job.ray, ctx),
         }),
         active: pack_job(&a.job, pixel, ctx),
-        stack: StackOut {
+        stack: stack(StackOut {
             jobs: &p.stack,
             pixel,
             ctx,
-        },
+        }),
     }
 }
 
