@@ -5,8 +5,9 @@
 //! 3.0.0 is a deliberate compile_error release, hence the pin to 2).
 //! Messages travel in envelopes of stamped frames (`append_stamped`).
 //!
-//! Paths travel in a compact form (`pack`, `unpack`; a node writes it
-//! with `RaysOut`, packing as it encodes) that leaves out what
+//! Paths travel in a compact form (`wire_routed`; a node writes it with
+//! `RaysOut`, packing as it encodes, and reads it with `unpack_each`)
+//! that leaves out what
 //! the receiving node can recompute exactly from what it already holds:
 //! a shadow ray's direction (its light's position minus its origin) and
 //! `t_max`, every ray's pixel (the path's sample says it), a walk point's
@@ -427,7 +428,9 @@ fn unpack_job(w: WireJob, pixel: u32, ctx: &PathContext) -> Result<RayJob, Strin
     })
 }
 
-/// Paths in their wire form.
+/// Paths in their wire form, as a batch: what `RaysOut` writes, built
+/// whole (the tests' reference for it).
+#[cfg(test)]
 pub fn pack(paths: &[Routed], ctx: &PathContext) -> WireBatch {
     WireBatch(
         paths
@@ -538,8 +541,9 @@ fn wire_routed<'a, 'c, S>(
     }
 }
 
-/// The paths of a batch, exactly as they were packed; an error for a
-/// batch that names a light, kind or cell the node does not have.
+/// The paths of a batch, exactly as they were packed, gathered
+/// (`unpack_each`; the tests' form of it).
+#[cfg(test)]
 pub fn unpack(batch: WireBatch, ctx: &PathContext) -> Result<Vec<Routed>, String> {
     let mut paths = Vec::with_capacity(batch.0.len());
     unpack_each(batch, ctx, |r| {
@@ -549,11 +553,13 @@ pub fn unpack(batch: WireBatch, ctx: &PathContext) -> Result<Vec<Routed>, String
     Ok(paths)
 }
 
-/// `unpack`, handing each path to `take` as it is unpacked: a node puts
-/// them in its queue one by one, without a vector of them between (at d
-/// = 5 the allocator and copying were a tenth of the machine's CPU, much
-/// of it in such intermediate vectors). Stops at the first error, of the
-/// batch or of `take`; the paths before it have been taken.
+/// The paths of a batch, exactly as they were packed, each handed to
+/// `take` as it is unpacked: a node puts them in its queue one by one,
+/// without a vector of them between (at d = 5 the allocator and copying
+/// were a tenth of the machine's CPU, much of it in such intermediate
+/// vectors). An error for a batch that names a light, kind or cell the
+/// node does not have; stops at the first error, of the batch or of
+/// `take`, the paths before it taken.
 pub fn unpack_each(
     batch: WireBatch,
     ctx: &PathContext,
@@ -561,62 +567,64 @@ pub fn unpack_each(
 ) -> Result<(), String> {
     let spp = u64::from(ctx.spp.max(1));
     for w in batch.0 {
-        let r = (|| {
-            let pixel = u32::try_from(w.sample / spp)
-                .map_err(|_| format!("sample {} is past every pixel", w.sample))?;
-            let job = unpack_job(w.active, pixel, ctx)?;
-            let at = match w.at {
-                None => None,
-                Some(a) => {
-                    let region = if a.cell & 1 == 1 {
-                        Region::Back
-                    } else {
-                        Region::Front
-                    };
-                    let cell = a.cell >> 2;
-                    let clipped = a.cell & 2 != 0;
-                    let rc = ctx.cells.region(region);
-                    if cell as usize >= rc.cell_count() {
-                        return Err(format!("a path at cell {cell}, which is none"));
-                    }
-                    let mut p = WalkPoint {
-                        region,
-                        super_cell: rc.super_cell_of(cell),
-                        cell,
-                        t_in: 0.0,
-                        clipped,
-                    };
-                    p.t_in = unpack_entry(a.entry, &p, &job.ray, ctx);
-                    Some(p)
-                }
-            };
-            let mut stack = Vec::with_capacity(w.stack.len());
-            for j in w.stack {
-                stack.push(unpack_job(j, pixel, ctx)?);
-            }
-            Ok(Routed {
-                dest: w.dest,
-                hops: w.hops,
-                path: Path {
-                    sample: w.sample,
-                    origin: w.origin,
-                    sum: w.sum,
-                    active: Active {
-                        job,
-                        number: w.number,
-                        t_min: w.t_min.unwrap_or(0.0),
-                        at,
-                    },
-                    stack,
-                    forks: u16::try_from(w.flags >> 1)
-                        .map_err(|_| format!("a path with {} forks", w.flags >> 1))?,
-                    leaf: w.flags & 1 == 1,
-                },
-            })
-        })()?;
-        take(r)?;
+        take(unpack_routed(w, spp, ctx)?)?;
     }
     Ok(())
+}
+
+/// One path of a batch (`unpack_each`), `spp` samples to a pixel.
+fn unpack_routed(w: WireRouted, spp: u64, ctx: &PathContext) -> Result<Routed, String> {
+    let pixel = u32::try_from(w.sample / spp)
+        .map_err(|_| format!("sample {} is past every pixel", w.sample))?;
+    let job = unpack_job(w.active, pixel, ctx)?;
+    let at = match w.at {
+        None => None,
+        Some(a) => {
+            let region = if a.cell & 1 == 1 {
+                Region::Back
+            } else {
+                Region::Front
+            };
+            let cell = a.cell >> 2;
+            let clipped = a.cell & 2 != 0;
+            let rc = ctx.cells.region(region);
+            if cell as usize >= rc.cell_count() {
+                return Err(format!("a path at cell {cell}, which is none"));
+            }
+            let mut p = WalkPoint {
+                region,
+                super_cell: rc.super_cell_of(cell),
+                cell,
+                t_in: 0.0,
+                clipped,
+            };
+            p.t_in = unpack_entry(a.entry, &p, &job.ray, ctx);
+            Some(p)
+        }
+    };
+    let mut stack = Vec::with_capacity(w.stack.len());
+    for j in w.stack {
+        stack.push(unpack_job(j, pixel, ctx)?);
+    }
+    Ok(Routed {
+        dest: w.dest,
+        hops: w.hops,
+        path: Path {
+            sample: w.sample,
+            origin: w.origin,
+            sum: w.sum,
+            active: Active {
+                job,
+                number: w.number,
+                t_min: w.t_min.unwrap_or(0.0),
+                at,
+            },
+            stack,
+            forks: u16::try_from(w.flags >> 1)
+                .map_err(|_| format!("a path with {} forks", w.flags >> 1))?,
+            leaf: w.flags & 1 == 1,
+        },
+    })
 }
 
 /// A batch of finished samples as it travels (`pack_done_into`).

@@ -24,7 +24,7 @@ pub enum ToNode {
     /// The node's share: the first message it gets, once per pass.
     Load(Box<Share>),
     /// A batch of paths over one link, in their wire form
-    /// (`codec::pack`).
+    /// (`codec::RaysOut`).
     Rays(super::codec::WireBatch),
     /// Permission to start this many more primary paths.
     Credit(u32),

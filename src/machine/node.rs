@@ -1216,7 +1216,7 @@ impl<'a> Node<'a> {
         Ok(())
     }
 
-    /// What paths on the wire may leave out (`codec::pack`).
+    /// What paths on the wire may leave out (`codec::wire_routed`).
     fn path_context(&self) -> PathContext<'a> {
         PathContext {
             lights: &self.share.scene.lights,
