@@ -1127,11 +1127,14 @@ impl CellTracer<'_> {
         // The stretch next to the light, where no primitive is, is left
         // out of the walk (`ShadowFacts::free_radius`).
         let end = self.light_at_end(ray, t_max);
-        let t_walk = end.map_or(t_max, |i| self.short_of_light(ray, t_max, i));
+        let t_walk = end.map_or(t_max, |(i, tol)| self.short_of_light(ray, t_max, i, tol));
         if t_walk.partial_cmp(&t_min) != Some(std::cmp::Ordering::Greater) {
             return Walk::Miss;
         }
-        let Some(light) = end.filter(|&i| self.takes_short(ray, t_min, t_max, i)) else {
+        let Some(light) = end
+            .map(|(i, _)| i)
+            .filter(|&i| self.takes_short(ray, t_min, t_max, i))
+        else {
             return self.walk(ray, t_min, t_walk, from);
         };
         self.occluding = true;
@@ -1160,8 +1163,9 @@ impl CellTracer<'_> {
 
     /// The light a ray over `(.., t_max)` ends at, up to the rounding of
     /// its direction (for a shadow ray, the light's position less the
-    /// ray's origin), if it ends at one.
-    fn light_at_end(&self, ray: &Ray, t_max: f64) -> Option<usize> {
+    /// ray's origin), if it ends at one, with how far from the light its
+    /// end may be and still be taken to end there.
+    fn light_at_end(&self, ray: &Ray, t_max: f64) -> Option<(usize, f64)> {
         if !t_max.is_finite() {
             return None;
         }
@@ -1173,22 +1177,17 @@ impl CellTracer<'_> {
             .map(|l| (l.position - end).length_squared())
             .enumerate()
             .min_by(|a, b| a.1.total_cmp(&b.1))?;
-        (d2 <= self.end_tolerance(ray, i).powi(2)).then_some(i)
-    }
-
-    /// How far from light `i` a ray's end may be and still be taken to
-    /// end at it (`light_at_end`).
-    fn end_tolerance(&self, ray: &Ray, i: usize) -> f64 {
         let at = self.scene.lights[i].position;
-        1e-9 * (at.abs().max_element() + ray.origin.abs().max_element())
+        let tol = 1e-9 * (at.abs().max_element() + ray.origin.abs().max_element());
+        (d2 <= tol * tol).then_some((i, tol))
     }
 
     /// Where a ray ending at light `i` at `t_max` enters the ball around
     /// the light that no primitive reaches (`ShadowFacts::free_radius`,
-    /// less the tolerance of its end): past that, it meets nothing.
-    fn short_of_light(&self, ray: &Ray, t_max: f64, i: usize) -> f64 {
-        let r =
-            self.cs.shadows.free_radius.get(i).copied().unwrap_or(0.0) - self.end_tolerance(ray, i);
+    /// less `tol`, the tolerance of its end, `light_at_end`): past that,
+    /// it meets nothing.
+    fn short_of_light(&self, ray: &Ray, t_max: f64, i: usize, tol: f64) -> f64 {
+        let r = self.cs.shadows.free_radius.get(i).copied().unwrap_or(0.0) - tol;
         let cut = t_max - r / ray.dir.length();
         if r > 0.0 && cut.is_finite() && cut < t_max {
             cut
