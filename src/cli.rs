@@ -53,6 +53,7 @@ pub struct MachineArgs {
     #[arg(long)]
     pub topology: Option<PathBuf>,
     /// Hypercube dimension, 2^D nodes (0: one node); overrides the topology's.
+    /// One node per host core renders fastest (`--dim 1` on two cores).
     #[arg(long)]
     pub dim: Option<u32>,
     /// Memory per node, e.g. 4.5MiB, 512KiB, 2GiB or bytes; overrides the topology's.
