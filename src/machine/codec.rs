@@ -1055,4 +1055,79 @@ mod tests {
         far.path.active.at.as_mut().unwrap().cell = last + 1;
         assert!(unpack(pack(&[far], &ctx), &ctx).is_err());
     }
+
+    /// The host's memory plan counts a path at most twice its decoded
+    /// bytes, for its decoded and its encoded form at once
+    /// (`host::path_bound`), with its stack's capacity at most the stack's
+    /// length bound: so a path's frame, alone in its message (the most
+    /// header per path), must never take more than the path decoded with
+    /// a stack of exactly its length. Checked with every field at its
+    /// largest wire form: numbers at the most bytes their encoding takes,
+    /// the entry parameter sent whole, rays of another pixel (sent whole).
+    #[test]
+    fn a_paths_frame_is_never_larger_than_the_path_decoded() {
+        use crate::cells::CellOptions;
+        use crate::scene::load::{SceneSyntax, parse_scene_str};
+        let scene = parse_scene_str(
+            "(camera: (eye: (0, -5, 0), look_at: (0, 0, 0), fov_y: 40, width: 8, height: 8),
+              lights: [(position: (0, 0, 5))],
+              objects: [Sphere(center: (0, 0, 0), radius: 1)])",
+            SceneSyntax::Ron,
+            std::path::Path::new("t.ron"),
+        )
+        .unwrap();
+        let cells = CellStructure::build(&scene, 8, 8, CellOptions::default());
+        let ctx = PathContext {
+            lights: &scene.lights,
+            spp: 1,
+            cells: &cells,
+        };
+        let job = |pixel| RayJob {
+            ray: Ray::new(Vec3::new(0.1, 0.2, 0.3), Vec3::new(0.4, 0.5, 0.6)),
+            kind: RayKind::Reflected,
+            pixel,
+            depth: u8::MAX,
+            weight: [1.0; 3],
+            t_max: 0.7,
+            leaving: Some(PrimId(u32::MAX)),
+        };
+        let front = cells.region(Region::Front);
+        for n in 0..=16 {
+            let r = Routed {
+                dest: u16::MAX,
+                hops: u8::MAX,
+                path: Path {
+                    sample: u64::MAX,
+                    origin: u16::MAX,
+                    sum: [i64::MIN; 3],
+                    active: Active {
+                        job: job(0),
+                        number: u32::MAX,
+                        t_min: 0.3,
+                        at: Some(WalkPoint {
+                            region: Region::Front,
+                            super_cell: 0,
+                            cell: front.cell_count() as u32 - 1,
+                            t_in: 0.123_456_789,
+                            clipped: true,
+                        }),
+                    },
+                    stack: (0..n).map(|_| job(u32::MAX)).collect(),
+                    forks: u16::MAX,
+                    leaf: true,
+                },
+            };
+            let out = RaysOut {
+                paths: std::slice::from_ref(&r),
+                ctx: &ctx,
+            };
+            let (_, len) = encode_stamped(&out, |_| 0.0).unwrap();
+            let decoded = std::mem::size_of::<Path>() + n * std::mem::size_of::<RayJob>();
+            assert!(
+                len.held <= decoded,
+                "{n} rays: frame {} bytes, decoded {decoded}",
+                len.held
+            );
+        }
+    }
 }

@@ -29,6 +29,7 @@ use super::codec::{
     PathContext, RaysOut, WireDone, append_stamped, decode_envelope, for_each_frame,
     pack_done_into, restamp, unpack_each,
 };
+use super::host::stack_bound;
 use super::message::{
     Active, Finished, LinkModel, NodeReport, Part, Path, Routed, Share, ToHost, ToNode,
 };
@@ -368,6 +369,9 @@ struct Node<'a> {
     paths_processed: u64,
     /// When the host link was last handed its waiting messages.
     host_flushed: Instant,
+    /// The most rays a path's stack holds (`host::stack_bound`), which its
+    /// capacity never passes (`trace`).
+    stack_rays: usize,
 }
 
 impl<'a> Node<'a> {
@@ -438,6 +442,8 @@ impl<'a> Node<'a> {
             clock,
             model: share.link,
             paths_processed: 0,
+            // The share keeps every light and material, and the depth.
+            stack_rays: stack_bound(&share.scene),
         })
     }
 
@@ -1028,8 +1034,17 @@ impl<'a> Node<'a> {
                 Walk::Hit(h) => {
                     let (stack, created) = (&mut path.stack, &mut self.report.rays_created);
                     let base = stack.len();
+                    let most = self.stack_rays;
                     let c = self.shader.shade(&a.job, &h, &mut |j: RayJob| {
                         created[j.kind.index()] += 1;
+                        // Grown as `Vec` grows it (doubling, from 4), but
+                        // never past the stack's bound, which no push
+                        // passes: the host's plan counts a path at that
+                        // capacity (`host::path_bound`), not twice it.
+                        if stack.len() == stack.capacity() {
+                            let want = (2 * stack.capacity()).max(4).min(most).max(stack.len() + 1);
+                            stack.reserve_exact(want - stack.len());
+                        }
                         stack.push(j);
                     });
                     // Shadow rays first (on top): then, when a reflected
