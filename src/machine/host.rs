@@ -29,8 +29,8 @@ pub const DEFAULT_CAPACITY: usize = 16;
 /// enough to keep it busy while others trace its paths and their credit
 /// comes back through the coordinator, which shares the host's cores.
 /// At d = 1 on 8 MiB nodes (1024x1024), 1,024 instead of 256 (the memory
-/// then allows 572 paths on the sphereflake, 924 on the jagged ball, 476
-/// on the house) took the wall time from 1.40-1.41 s to 1.36-1.37 s on
+/// then allowed 572 paths on the sphereflake, 924 on the jagged ball, 476
+/// on the house, with paths counted at twice their stack's bound) took the wall time from 1.40-1.41 s to 1.36-1.37 s on
 /// the sphereflake (`scale --dims 0,1 --repeat 5`, two rounds each), from
 /// 0.68-0.70 s to 0.65-0.67 s on the jagged ball and from 2.88-3.01 s to
 /// 2.84-2.90 s on the house (four rounds), and the virtual seconds by
