@@ -7,11 +7,10 @@
 //!
 //! Paths travel in a compact form (`wire_routed`; a node writes it with
 //! `RaysOut`, packing as it encodes, and reads it with `unpack_each`)
-//! that leaves out what
-//! the receiving node can recompute exactly from what it already holds:
-//! a shadow ray's direction (its light's position minus its origin) and
-//! `t_max`, every ray's pixel (the path's sample says it), a walk point's
-//! super cell (its cell says it).
+//! that leaves out what the receiving node can recompute exactly from
+//! what it already holds: a shadow ray's direction (its light's position
+//! minus its origin) and `t_max`, every ray's pixel (the path's sample
+//! says it), a walk point's super cell (its cell says it).
 //!
 //! Finished samples travel to the host packed by hand (`pack_done_into`), as
 //! one byte string per batch: a record of a few flags and differences

@@ -30,11 +30,12 @@ pub const DEFAULT_CAPACITY: usize = 16;
 /// comes back through the coordinator, which shares the host's cores.
 /// At d = 1 on 8 MiB nodes (1024x1024), 1,024 instead of 256 (the memory
 /// then allowed 572 paths on the sphereflake, 924 on the jagged ball, 476
-/// on the house, with paths counted at twice their stack's bound) took the wall time from 1.40-1.41 s to 1.36-1.37 s on
-/// the sphereflake (`scale --dims 0,1 --repeat 5`, two rounds each), from
-/// 0.68-0.70 s to 0.65-0.67 s on the jagged ball and from 2.88-3.01 s to
-/// 2.84-2.90 s on the house (four rounds), and the virtual seconds by
-/// 3-5%: fewer nodes idle with primary paths left but no credit.
+/// on the house, with paths counted at twice their stack's bound) took
+/// the wall time from 1.40-1.41 s to 1.36-1.37 s on the sphereflake
+/// (`scale --dims 0,1 --repeat 5`, two rounds each), from 0.68-0.70 s to
+/// 0.65-0.67 s on the jagged ball and from 2.88-3.01 s to 2.84-2.90 s on
+/// the house (four rounds), and the virtual seconds by 3-5%: fewer nodes
+/// idle with primary paths left but no credit.
 pub const MAX_WINDOW: u32 = 1024;
 
 /// What to render on the machine, beyond the scene and the topology.
