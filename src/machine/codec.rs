@@ -888,8 +888,9 @@ mod tests {
         assert!(!restamp(&mut env, before.len() - 3, 1.0));
     }
 
-    #[test]
-    fn paths_unpack_exactly_as_packed_and_smaller() {
+    /// A ball under two lights at 8x8, built into several super cells, so
+    /// that rays cross side faces.
+    fn ball_scene() -> (crate::scene::Scene, CellStructure) {
         use crate::cells::CellOptions;
         use crate::scene::load::{SceneSyntax, parse_scene_str};
         let scene = parse_scene_str(
@@ -900,7 +901,6 @@ mod tests {
             std::path::Path::new("t.ron"),
         )
         .unwrap();
-        // Several super cells, so that rays cross side faces.
         let cells = CellStructure::build(
             &scene,
             8,
@@ -910,6 +910,12 @@ mod tests {
                 ..CellOptions::default()
             },
         );
+        (scene, cells)
+    }
+
+    #[test]
+    fn paths_unpack_exactly_as_packed_and_smaller() {
+        let (scene, cells) = ball_scene();
         let ctx = PathContext {
             lights: &scene.lights,
             spp: 4,
@@ -1065,17 +1071,7 @@ mod tests {
     /// the entry parameter sent whole, rays of another pixel (sent whole).
     #[test]
     fn a_paths_frame_is_never_larger_than_the_path_decoded() {
-        use crate::cells::CellOptions;
-        use crate::scene::load::{SceneSyntax, parse_scene_str};
-        let scene = parse_scene_str(
-            "(camera: (eye: (0, -5, 0), look_at: (0, 0, 0), fov_y: 40, width: 8, height: 8),
-              lights: [(position: (0, 0, 5))],
-              objects: [Sphere(center: (0, 0, 0), radius: 1)])",
-            SceneSyntax::Ron,
-            std::path::Path::new("t.ron"),
-        )
-        .unwrap();
-        let cells = CellStructure::build(&scene, 8, 8, CellOptions::default());
+        let (scene, cells) = ball_scene();
         let ctx = PathContext {
             lights: &scene.lights,
             spp: 1,
