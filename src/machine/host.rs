@@ -643,6 +643,9 @@ fn run_pass(
     let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
     let lag_slices = super::node::lag_slices(n, cores);
     let (mut host, node_links) = channels(d, opts.capacity);
+    // The nodes' stopwatch is measured once per process, here rather than
+    // in some node's first slice.
+    super::ticks::calibrate();
     let mut run = Run::new(opts.width, opts.height, pass.spp, n, model);
     let pixels = pass.pixels.list().map(|l| l.to_vec());
     std::thread::scope(|sc| -> Result<()> {

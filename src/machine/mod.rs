@@ -10,6 +10,7 @@
 //! * `message` and `codec`: what travels, and its bytes (bincode 2);
 //! * `transport`: links as a small trait, with in-process channels;
 //! * `node`: a node's loop (tracing, routing, flow control, memory, clock);
+//! * `ticks`: the nodes' cheap stopwatch for that clock's bookkeeping;
 //! * `host`: the coordinator (loading, credits, exact termination).
 
 pub mod calibrate;
@@ -19,6 +20,7 @@ pub mod mapping;
 pub mod message;
 pub mod node;
 pub mod routing;
+pub mod ticks;
 pub mod topology;
 pub mod transport;
 

@@ -23,7 +23,6 @@
 
 use std::cmp::Ordering;
 use std::collections::{BinaryHeap, VecDeque};
-use std::time::{Duration, Instant};
 
 use super::codec::{
     PathContext, RaysOut, WireDone, append_stamped, decode_envelope, for_each_frame,
@@ -34,6 +33,7 @@ use super::message::{
     Active, Finished, LinkModel, NodeReport, Part, Path, Routed, Share, ToHost, ToNode,
 };
 use super::routing::{NodeId, next_dimension};
+use super::ticks::Ticks;
 use super::transport::{Link, NodeLinks};
 use crate::cells::{CellStructure, CellTracer, Region, Walk};
 use crate::render::sample_offset_from;
@@ -100,7 +100,7 @@ const LAG_SLICES: f64 = 1.0;
 const LAG_SLICES_OWN_CORE: f64 = 8.0;
 /// Host time a node works between two looks at its links and its
 /// neighbours' clocks (`LAG_SLICES`).
-const SLICE: Duration = Duration::from_micros(25);
+const SLICE: f64 = 25e-6;
 /// Host time between two readings of a node's CPU time (`CpuWindow`),
 /// unless the node waits first. Reading it is a system call of about
 /// 0.7 µs on this host's virtual machine: read at the ends of every
@@ -108,14 +108,14 @@ const SLICE: Duration = Duration::from_micros(25);
 /// (Longer slices would save the same but let the clocks drift further
 /// apart: with 100 µs slices the sphereflake's d = 5 render took 1.6
 /// times the virtual seconds per busy second.)
-const CPU_WINDOW: Duration = Duration::from_micros(100);
+const CPU_WINDOW: f64 = 100e-6;
 /// How long (host time) the messages for the host may gather before they
 /// are handed to the link, unless the node is about to idle. Emulation
 /// only: every message keeps its own virtual stamp, so the model is the
 /// same; but the host thread, which shares the host's cores with the
 /// nodes, wakes a few thousand times a second instead of once per slice
 /// of every node.
-const HOST_COALESCE: Duration = Duration::from_micros(500);
+const HOST_COALESCE: f64 = 500e-6;
 
 /// Slices of work a node may run ahead of its neighbours (`LAG_SLICES`)
 /// when `nodes` node threads share `cores` cores: from one slice when four
@@ -208,17 +208,17 @@ pub fn run(id: u16, links: &mut dyn NodeLinks) -> Result<(), NodeError> {
 /// the host seconds within it that were the emulation's.
 struct CpuWindow {
     cpu0: f64,
-    opened: Instant,
+    opened: Ticks,
     estimated: f64,
     floor: f64,
     excluded: f64,
     /// When the last slice in it ended.
-    slice_end: Instant,
+    slice_end: Ticks,
 }
 
 impl CpuWindow {
     /// A window from CPU time `cpu0` and the clock `clock`, at `now`.
-    fn open(cpu0: f64, clock: f64, now: Instant) -> Self {
+    fn open(cpu0: f64, clock: f64, now: Ticks) -> Self {
         CpuWindow {
             cpu0,
             opened: now,
@@ -333,11 +333,11 @@ struct Node<'a> {
     /// While a unit of work runs (`work_for_a_while`): the host time and
     /// `excluded` up to which its computing is on the clock already, and
     /// the virtual seconds charged in it so far (`catch_up`).
-    unit: Option<(Instant, f64)>,
+    unit: Option<(Ticks, f64)>,
     unit_charged: f64,
     /// The outermost `excluding` block running, if any: when it began, and
     /// `excluded` then.
-    exclusion: Option<(Instant, f64)>,
+    exclusion: Option<(Ticks, f64)>,
     /// The slices since the node's CPU time was last read, if any.
     cpu_window: Option<CpuWindow>,
     /// Per link, the envelope of messages waiting to go (`codec`).
@@ -368,7 +368,7 @@ struct Node<'a> {
     model: LinkModel,
     paths_processed: u64,
     /// When the host link was last handed its waiting messages.
-    host_flushed: Instant,
+    host_flushed: Ticks,
     /// The most rays a path's stack holds (`host::stack_bound`), which its
     /// capacity never passes (`trace`).
     stack_rays: usize,
@@ -419,7 +419,7 @@ impl<'a> Node<'a> {
             batches: vec![Vec::new(); d + 1],
             opened: vec![0.0; d + 1],
             done_urgent: None,
-            host_flushed: Instant::now(),
+            host_flushed: Ticks::now(),
             excluded: 0.0,
             unit: None,
             unit_charged: 0.0,
@@ -540,7 +540,7 @@ impl<'a> Node<'a> {
     /// The most virtual time a node may run ahead of a neighbour: a few
     /// slices of its work (`Share::lag_slices`).
     fn lag(&self) -> f64 {
-        self.share.lag_slices * SLICE.as_secs_f64() / self.model.compute_speed
+        self.share.lag_slices * SLICE / self.model.compute_speed
     }
 
     /// Whether the node is so far ahead of a neighbour, in virtual time,
@@ -619,28 +619,26 @@ impl<'a> Node<'a> {
     /// errs on the slow side.)
     fn work_for_a_while(&mut self) -> Result<bool, NodeError> {
         let speed = self.model.compute_speed;
-        let now = Instant::now();
+        let now = Ticks::now();
         let (mut window, start) = match self.cpu_window.take() {
-            Some(w) if now - w.slice_end < CPU_WINDOW => (w, now),
+            Some(w) if now.seconds_since(w.slice_end) < CPU_WINDOW => (w, now),
             // Long enough since the last slice that the thread may have
             // been descheduled: settled now, with that time charged (as
             // the CPU time it was, some microseconds of emulation), so
             // that no wait is taken off the node's CPU time.
             Some(w) => {
                 let (cpu, at) = self.settle(w);
-                (CpuWindow::open(cpu, self.clock, at), Instant::now())
+                (CpuWindow::open(cpu, self.clock, at), Ticks::now())
             }
             // Host time from before the reading: a window's CPU time must
             // lie within its host time (`settle`).
             None => (
                 CpuWindow::open(cpu_seconds(), self.clock, now),
-                Instant::now(),
+                Ticks::now(),
             ),
         };
         // Since the last slice: decoding and sending, the emulation's.
-        window.excluded += start
-            .saturating_duration_since(window.slice_end)
-            .as_secs_f64();
+        window.excluded += start.seconds_since(window.slice_end);
         let mut t0 = start;
         let mut estimated = 0.0;
         let mut worked = false;
@@ -657,8 +655,8 @@ impl<'a> Node<'a> {
                 // idles. (Counted, its CPU time came out as busy with no
                 // clock time for it, and a node's busy time could pass the
                 // run's end.)
-                t0 = Instant::now();
-                self.excluded = excluded + (t0 - t_mark).as_secs_f64();
+                t0 = Ticks::now();
+                self.excluded = excluded + t0.seconds_since(t_mark);
                 break;
             }
             worked = true;
@@ -668,13 +666,13 @@ impl<'a> Node<'a> {
             if self.clock - self.unit_charged > before {
                 window.floor = window.floor.max(self.clock);
             }
-            let t1 = Instant::now();
-            let unit = (t1 - t_mark).as_secs_f64() - (self.excluded - excluded);
+            let t1 = Ticks::now();
+            let unit = t1.seconds_since(t_mark) - (self.excluded - excluded);
             t0 = t1;
             let dt = unit.max(0.0) / speed;
             self.clock += dt;
             estimated += dt;
-            if t1 - start >= SLICE {
+            if t1.seconds_since(start) >= SLICE {
                 break;
             }
         }
@@ -685,7 +683,7 @@ impl<'a> Node<'a> {
         window.estimated += estimated;
         window.excluded += self.excluded;
         window.slice_end = end;
-        self.cpu_window = Some(if end - window.opened >= CPU_WINDOW {
+        self.cpu_window = Some(if end.seconds_since(window.opened) >= CPU_WINDOW {
             // One reading closes this window and opens the next.
             let (cpu, at) = self.settle(window);
             CpuWindow::open(cpu, self.clock, at)
@@ -701,14 +699,14 @@ impl<'a> Node<'a> {
     /// such call (forwarding seals and enqueues), is part of that time,
     /// not added again.
     fn excluding<R>(&mut self, f: impl FnOnce(&mut Self) -> R) -> R {
-        let (t0, before) = (Instant::now(), self.excluded);
+        let (t0, before) = (Ticks::now(), self.excluded);
         let outer = self.exclusion;
         if outer.is_none() {
             self.exclusion = Some((t0, before));
         }
         let r = f(self);
         self.exclusion = outer;
-        self.excluded = before + t0.elapsed().as_secs_f64();
+        self.excluded = before + t0.elapsed();
         r
     }
 
@@ -731,15 +729,11 @@ impl<'a> Node<'a> {
     /// exceeds the host time its slices were estimated by: a reading
     /// outside it (the system call takes microseconds on a loaded host)
     /// once charged a node computing after its last message.
-    fn settle(&mut self, w: CpuWindow) -> (f64, Instant) {
-        let before = Instant::now();
+    fn settle(&mut self, w: CpuWindow) -> (f64, Ticks) {
+        let before = Ticks::now();
         let cpu_now = cpu_seconds();
-        let tail = Instant::now().saturating_duration_since(w.slice_end);
-        let tail = if tail < CPU_WINDOW {
-            tail.as_secs_f64()
-        } else {
-            0.0
-        };
+        let tail = Ticks::now().seconds_since(w.slice_end);
+        let tail = if tail < CPU_WINDOW { tail } else { 0.0 };
         let cpu = (cpu_now - w.cpu0 - w.excluded - tail).max(0.0);
         self.report.busy_seconds += cpu;
         let speed = self.model.compute_speed;
@@ -1261,8 +1255,8 @@ impl<'a> Node<'a> {
         if let Some((t0, excluded)) = self.unit {
             let (cut, cut_excluded) = self
                 .exclusion
-                .unwrap_or_else(|| (Instant::now(), self.excluded));
-            let done = cut.saturating_duration_since(t0).as_secs_f64() - (cut_excluded - excluded);
+                .unwrap_or_else(|| (Ticks::now(), self.excluded));
+            let done = cut.seconds_since(t0) - (cut_excluded - excluded);
             let dt = done.max(0.0) / self.model.compute_speed;
             self.clock += dt;
             self.unit_charged += dt;
@@ -1312,7 +1306,7 @@ impl<'a> Node<'a> {
                 if self.host_flushed.elapsed() < HOST_COALESCE {
                     continue;
                 }
-                self.host_flushed = Instant::now();
+                self.host_flushed = Ticks::now();
             }
             let bytes = std::mem::take(&mut self.waiting[i]);
             let clock_frame = self.clock_frame[i].take();
