@@ -62,7 +62,7 @@ pub struct MachineArgs {
     /// How super cells are mapped to nodes: balanced by a cost pre-pass, or equal image areas.
     #[arg(long, value_enum, default_value_t = Mapping::Balanced)]
     pub mapping: Mapping,
-    /// Envelopes (a slice's messages for one link) each link holds before its sender must wait.
+    /// Envelopes (a slice's messages for one link) each link holds before its sender must wait (1 to 1024).
     #[arg(long, default_value_t = machine::DEFAULT_CAPACITY)]
     pub link_capacity: usize,
     /// Leave out the shadow cache (each node's last blocker per light, tried before a shadow ray walks).
@@ -95,8 +95,12 @@ impl MachineArgs {
         spp: u32,
         bsp: SegmentChoice,
     ) -> Result<MachineOptions> {
-        if self.link_capacity == 0 {
-            return Err(Error::Usage("--link-capacity must be at least 1".into()));
+        if self.link_capacity == 0 || self.link_capacity > machine::MAX_CAPACITY {
+            return Err(Error::Usage(format!(
+                "--link-capacity must be in 1..={}, got {}",
+                machine::MAX_CAPACITY,
+                self.link_capacity
+            )));
         }
         let mut o = MachineOptions::new(width, height, spp);
         o.cells = CellOptions {

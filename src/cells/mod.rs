@@ -1052,7 +1052,7 @@ fn cut_super_cells(
         leaf.prims.retain(|&p| {
             let cb = cam_boxes[p as usize]
                 .as_ref()
-                .expect("a listed primitive has a projection");
+                .expect("the BSP lists only primitives with a screen rect, and each has a cam box");
             if whole[p as usize] {
                 let (z0, z1) = View::depth_range_whole(cb, region);
                 extents.push((p, z0, z1));
@@ -1181,7 +1181,7 @@ fn depth_partition(
     let mut prims = Vec::new();
     let mut bounds = vec![rz0];
     for c in cuts.into_iter().chain([rz1]) {
-        if c > *bounds.last().expect("rz0") {
+        if c > *bounds.last().expect("starts as [rz0], only pushed to") {
             bounds.push(c);
         }
     }

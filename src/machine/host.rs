@@ -24,6 +24,12 @@ use crate::trace::{Film, RayCounts, RayJob, prefault};
 
 /// Messages a link holds by default.
 pub const DEFAULT_CAPACITY: usize = 16;
+/// The most messages a link may hold (`--link-capacity`). A bounded
+/// crossbeam channel allocates its every slot up front, 32 bytes each, on
+/// each of a machine's (d + 1)·2^d links: 1,024 keeps that under 400 MB at
+/// the largest dimension, where a capacity near 2^64 panicked in crossbeam
+/// and 10^9 aborted the allocation.
+pub const MAX_CAPACITY: usize = 1024;
 /// The most primary paths a node keeps unfinished, where its memory
 /// would allow more (`Plan::new` bounds the window by the memory first):
 /// enough to keep it busy while others trace its paths and their credit

@@ -25,7 +25,8 @@ pub mod topology;
 pub mod transport;
 
 pub use host::{
-    DEFAULT_CAPACITY, MachineOptions, MachineStats, render, render_adaptive, stack_bound,
+    DEFAULT_CAPACITY, MAX_CAPACITY, MachineOptions, MachineStats, render, render_adaptive,
+    stack_bound,
 };
 pub use mapping::Mapping;
 pub use topology::{Topology, parse_size};

@@ -121,12 +121,27 @@ fn bad_options_are_refused_before_rendering() {
     let sphere = util::repo("scenes/small/sphere.ron");
     let sphere = path_str(&sphere);
     let mut problems = Vec::new();
-    let cases: [(&[&str], &str); 5] = [
+    // A link capacity near 2^64 panicked in crossbeam ("bounded channel
+    // capacity is too large"); 10^9 aborted allocating its slots.
+    let huge = u64::MAX.to_string();
+    let cases: [(&[&str], &str); 8] = [
         (&["-o", "x.jpg"], "x.jpg"),
         (&["-o", "out.png", "--width", "0"], "0x48"),
         (&["-o", "out.png", "--height", "0"], "64x0"),
         (&["-o", "out.png", "--spp", "0"], "--spp"),
         (&["-o", "no/such/folder/out.png"], "no/such/folder"),
+        (
+            &["-o", "out.png", "--link-capacity", "0"],
+            "--link-capacity",
+        ),
+        (
+            &["-o", "out.png", "--link-capacity", &huge],
+            "--link-capacity",
+        ),
+        (
+            &["-o", "out.png", "--link-capacity", "1000000000"],
+            "--link-capacity must be in 1..=1024, got 1000000000",
+        ),
     ];
     for (extra, want) in cases {
         let tmp = tempfile::tempdir().unwrap();
