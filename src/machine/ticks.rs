@@ -33,9 +33,9 @@ struct Source {
 
 static SOURCE: OnceLock<Source> = OnceLock::new();
 
-/// How long the counter's rate is measured against `Instant`: the two
-/// readings at each end are some 25 ns apart, so the rate is known to a
-/// few parts in 100,000, far below the noise of what the nodes time.
+/// How long the counter's rate is measured against `Instant`: each end is
+/// held to some 25 ns (`bracketed`), so the rate is known to a few parts
+/// in 100,000, far below the noise of what the nodes time.
 const CALIBRATION: Duration = Duration::from_millis(2);
 
 /// Decides the source and measures its rate, once per process. Called by
@@ -56,21 +56,47 @@ fn source() -> &'static Source {
         if !kernel_keeps_time_by_tsc() {
             return instant;
         }
-        let (i0, c0) = (Instant::now(), counter());
+        let Some((i0, c0)) = bracketed() else {
+            return instant;
+        };
         while i0.elapsed() < CALIBRATION {
             std::hint::spin_loop();
         }
-        let (i1, c1) = (Instant::now(), counter());
+        let Some((i1, c1)) = bracketed() else {
+            return instant;
+        };
         let seconds = (i1 - i0).as_secs_f64();
-        match c1.checked_sub(c0) {
-            Some(n) if n > 0 && seconds > 0.0 => Source {
+        let rate = c1.checked_sub(c0).map(|n| n as f64 / seconds);
+        match rate {
+            // A counter from 100 MHz to 100 GHz; anything else is not
+            // the clock it was taken for.
+            Some(hz) if (1e8..1e11).contains(&hz) => Source {
                 tsc: true,
-                seconds_per_tick: seconds / n as f64,
+                seconds_per_tick: 1.0 / hz,
                 epoch,
             },
             _ => instant,
         }
     })
+}
+
+/// An `Instant` and the counter at the same moment: the counter read just
+/// before and just after it, their middle, from the tightest of some
+/// tries. A thread descheduled between the two readings of a single try
+/// would put the counter off by its whole wait (a shared host's
+/// milliseconds, against a calibration of two): the tightest of sixteen
+/// holds the moment to a few tens of nanoseconds unless every try waited.
+fn bracketed() -> Option<(Instant, u64)> {
+    (0..16)
+        .filter_map(|_| {
+            let before = counter();
+            let at = Instant::now();
+            let after = counter();
+            let spread = after.checked_sub(before)?;
+            Some((spread, at, before + spread / 2))
+        })
+        .min_by_key(|&(spread, _, _)| spread)
+        .map(|(_, at, c)| (at, c))
 }
 
 /// Whether Linux keeps its own time by the time-stamp counter: it does so
