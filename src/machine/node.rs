@@ -230,6 +230,23 @@ impl CpuWindow {
     }
 }
 
+/// Puts the shadow rays among `spawned` after the others (on top of the
+/// stack), each kind in the order it came: a stable sort by kind. The
+/// shader spawns its shadow rays first, so that is a rotation; the sort
+/// (0.5% of a `--dim 1` render's CPU for a handful of rays) stays for any
+/// other order.
+fn shadows_on_top(spawned: &mut [RayJob]) {
+    let shadows = spawned
+        .iter()
+        .take_while(|j| j.kind == RayKind::Shadow)
+        .count();
+    if spawned[shadows..].iter().all(|j| j.kind != RayKind::Shadow) {
+        spawned.rotate_left(shadows);
+    } else {
+        spawned.sort_by_key(|j| j.kind == RayKind::Shadow);
+    }
+}
+
 /// The bytes of the paths a message brings, once decoded.
 fn ray_bytes(body: &ToNode) -> usize {
     match body {
@@ -1048,7 +1065,7 @@ impl<'a> Node<'a> {
                     // on a stack (`host::stack_bound`) counts on this
                     // order. The image does not depend on the order:
                     // contributions sum in fixed point.
-                    stack[base..].sort_by_key(|j| j.kind == RayKind::Shadow);
+                    shadows_on_top(&mut stack[base..]);
                     // The primitive each leaves, by its index in the whole
                     // scene, which every node knows.
                     let cells = &self.share.cells;
@@ -1492,6 +1509,41 @@ impl Primaries {
                 return;
             }
             self.at += 1;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geom::{Ray, Vec3};
+
+    /// `shadows_on_top` is the stable sort by kind it stands for, in the
+    /// shader's order and in any other: every sequence of up to six rays
+    /// of three kinds, each numbered by its pixel to see the order kept.
+    #[test]
+    fn shadows_go_on_top_in_the_order_they_came() {
+        let kinds = [RayKind::Shadow, RayKind::Reflected, RayKind::Refracted];
+        for n in 0..=6u32 {
+            for code in 0..3u32.pow(n) {
+                let jobs: Vec<RayJob> = (0..n)
+                    .map(|i| RayJob {
+                        ray: Ray::new(Vec3::ZERO, Vec3::Z),
+                        kind: kinds[(code / 3u32.pow(i) % 3) as usize],
+                        pixel: i,
+                        depth: 0,
+                        weight: [1.0; 3],
+                        t_max: f64::INFINITY,
+                        leaving: None,
+                    })
+                    .collect();
+                let mut sorted = jobs.clone();
+                sorted.sort_by_key(|j| j.kind == RayKind::Shadow);
+                let mut ours = jobs;
+                shadows_on_top(&mut ours);
+                let order = |v: &[RayJob]| v.iter().map(|j| (j.pixel, j.kind)).collect::<Vec<_>>();
+                assert_eq!(order(&ours), order(&sorted), "code {code} of {n} rays");
+            }
         }
     }
 }
