@@ -127,7 +127,8 @@ impl MachineArgs {
 pub struct ScaleArgs {
     /// Scene file: .ron, .json or .nff.
     pub scene: PathBuf,
-    /// Dimensions to run, as a range A..B (inclusive) or a list 0,2,5.
+    /// Dimensions to run, each once, as a range A..B (inclusive) or a list
+    /// 0,2,5; run smallest first, and speedups are against the smallest.
     #[arg(long, default_value = "0..5")]
     pub dims: String,
     /// Rounds of runs, each round every dimension once; times are medians,

@@ -703,6 +703,43 @@ fn scale_refuses_a_dimension_that_does_not_fit_and_writes_nothing() {
     assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
 
+/// Audit: `scale --dims 2,2` ran dimension 2 twice (two rows of one
+/// dimension), and `--dims 1,0` took speedups against two nodes. A
+/// dimension given twice is a usage error naming it, before the scene is
+/// read; a list in any order runs smallest first, the baseline of the
+/// speedups.
+#[test]
+fn scale_refuses_a_repeated_dimension_and_runs_the_smallest_first() {
+    let scene = util::repo("scenes/small/mirror.ron");
+    let scene = path_str(&scene);
+    let mut problems = Vec::new();
+    for (dims, d) in [("2,2", 2), ("1,0,1", 1)] {
+        let tmp = tempfile::tempdir().unwrap();
+        problems.extend(check_refusal(
+            tmp.path(),
+            &["scale", scene, "--dims", dims, "--out", "out"],
+            &format!("--dims: {d} is given more than once"),
+        ));
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+    let tmp = tempfile::tempdir().unwrap();
+    let args = [
+        "scale", scene, "--dims", "1,0", "--width", "40", "--height", "30", "--out", "out", "-q",
+    ];
+    let o = run(tmp.path(), &args);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let csv = std::fs::read_to_string(tmp.path().join("out/scaling.csv")).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    let dims: Vec<&str> = rows.iter().map(|r| r[col("dimension")]).collect();
+    assert_eq!(dims, ["0", "1"], "{csv}");
+    for k in ["speedup_wall", "speedup_virtual", "work_ratio"] {
+        assert_eq!(rows[0][col(k)].parse::<f64>(), Ok(1.0), "{k}: {csv}");
+    }
+}
+
 /// The README's examples of an error (a `$ hypercast ...` line followed by
 /// `hypercast: error: ...`) are what the binary prints today, word for
 /// word: the README is where a new user first meets them.
