@@ -284,6 +284,47 @@ fn inputs_that_are_not_regular_files_or_too_large_are_refused_at_once() {
     assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
 
+/// Audit: a render thread the OS refused to start was a panic
+/// (`std::thread::Scope::spawn`). It is a failed render now: exit 1, one
+/// line naming the thread, no image. The OS refuses for real here: every
+/// thread started without a stack size of its own (the render's; the
+/// scene loader and the machine's nodes set theirs) asks for a stack
+/// larger than any address space (`RUST_MIN_STACK`, 2^62 bytes).
+#[test]
+fn a_render_thread_the_os_refuses_is_a_failed_render_not_a_panic() {
+    let tmp = tempfile::tempdir().unwrap();
+    let sphere = util::repo("scenes/small/sphere.ron");
+    let args = [
+        "render",
+        path_str(&sphere),
+        "-o",
+        "out.png",
+        "--accel",
+        "roth",
+        "--threads",
+        "2",
+        "--width",
+        "40",
+        "--height",
+        "30",
+    ];
+    let o = Command::new(BIN)
+        .args(args)
+        .current_dir(tmp.path())
+        .env("RUST_BACKTRACE", "1")
+        .env("RUST_MIN_STACK", (1u64 << 62).to_string())
+        .output()
+        .expect("the binary runs");
+    let problems = check_failure(
+        tmp.path(),
+        &args,
+        &o,
+        1,
+        "hypercast: error: cannot start render thread 1 of 2: ",
+    );
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
 /// An output that would replace an input, or another output, is refused
 /// before anything is read or written: `convert` onto its own scene would
 /// rewrite it without its comments, `--stats` onto the scene would replace
