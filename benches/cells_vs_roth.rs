@@ -63,7 +63,8 @@ fn cells(scene: &Scene, o: &RenderOptions) -> (RenderStats, CellStructure) {
         || CellTracer::new(&cs, scene),
         |t, j| t.skips_primary(&j.ray),
         &|_| {},
-    );
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
     (st, cs)
 }
 

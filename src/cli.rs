@@ -127,7 +127,8 @@ impl MachineArgs {
 pub struct ScaleArgs {
     /// Scene file: .ron, .json or .nff.
     pub scene: PathBuf,
-    /// Dimensions to run, as a range A..B (inclusive) or a list 0,2,5.
+    /// Dimensions to run, each once, as a range A..B (inclusive) or a list
+    /// 0,2,5; run smallest first, and speedups are against the smallest.
     #[arg(long, default_value = "0..5")]
     pub dims: String,
     /// Rounds of runs, each round every dimension once; times are medians,
@@ -512,7 +513,7 @@ struct RenderOutcome {
 }
 
 /// Renders a job: the one place that picks the renderer for `render`.
-fn render_job(job: &RenderJob, progress: &(dyn Fn(u32) + Sync)) -> RenderOutcome {
+fn render_job(job: &RenderJob, progress: &(dyn Fn(u32) + Sync)) -> Result<RenderOutcome> {
     let r = render::render_host(
         &job.scene,
         &job.opts,
@@ -520,15 +521,15 @@ fn render_job(job: &RenderJob, progress: &(dyn Fn(u32) + Sync)) -> RenderOutcome
         job.accel,
         CellOptions::default(),
         progress,
-    );
-    RenderOutcome {
+    )?;
+    Ok(RenderOutcome {
         film: r.film,
         stats: r.stats,
         cells: r.cells,
         aa: r.aa,
         virtual_seconds: None,
         machine: None,
-    }
+    })
 }
 
 /// "1.234 s wall" and, when the machine predicted it, "0.567 s virtual".
@@ -548,7 +549,7 @@ fn run_render(a: RenderArgs) -> Result<()> {
             let progress = |rows: u32| pb.inc(rows as u64);
             let out = render_job(&job, &progress);
             pb.finish_and_clear();
-            out
+            out?
         }
         Some((topo, mopts)) => {
             let samples = job.opts.width as u64 * job.opts.height as u64 * job.opts.spp as u64;
@@ -888,7 +889,7 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
         };
         let pb = progress_bar(height as u64, a.quiet, "overlay");
         let progress = |rows: u32| pb.inc(rows as u64);
-        let (film, _) = render::render_with(
+        let rendered = render::render_with(
             &scene,
             &opts,
             || crate::cells::CellTracer::new(cs, &scene),
@@ -896,6 +897,7 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
             &progress,
         );
         pb.finish_and_clear();
+        let (film, _) = rendered?;
         let mut img = film.to_linear();
         let cam = crate::trace::CameraFrame::new(&scene, width, height);
         report::overlay::draw_super_cells(&mut img, &cam, cs, Some(&plan.owner[0]));

@@ -5,6 +5,7 @@
 pub mod csg;
 pub mod error;
 pub mod geom;
+pub mod input;
 pub mod scene;
 
 pub use error::{Error, Result};

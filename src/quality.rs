@@ -36,7 +36,8 @@ pub struct PointRender {
 /// Renders `scene` (whose `max_depth` is already the point's) with the
 /// point's sampling: the single place where the experiment chooses its
 /// renderer, so that moving `quality` onto the hypercube machine is a
-/// change of this function's body alone.
+/// change of this function's body alone. Fails as `render::render_host`
+/// does, only if the OS refuses a thread.
 pub fn render_point(
     scene: &Scene,
     width: u32,
@@ -44,7 +45,7 @@ pub fn render_point(
     threads: usize,
     knobs: &Knobs,
     progress: &(dyn Fn(u32) + Sync),
-) -> PointRender {
+) -> Result<PointRender> {
     let opts = RenderOptions {
         width,
         height,
@@ -58,18 +59,19 @@ pub fn render_point(
         Accel::Cells,
         CellOptions::default(),
         progress,
-    );
-    PointRender {
+    )?;
+    Ok(PointRender {
         film: r.film,
         stats: r.stats,
         refined_pixels: r.aa.refined_pixels,
         samples: r.aa.samples,
         virtual_seconds: None,
-    }
+    })
 }
 
 /// Renders the reference: Roth's brute force (the oracle) at `spp`
-/// stratified samples per pixel and the scene's own `max_depth`.
+/// stratified samples per pixel and the scene's own `max_depth`. Fails as
+/// `render_point` does.
 pub fn render_reference(
     scene: &Scene,
     width: u32,
@@ -77,7 +79,7 @@ pub fn render_reference(
     threads: usize,
     spp: u32,
     progress: &(dyn Fn(u32) + Sync),
-) -> Film {
+) -> Result<Film> {
     let opts = RenderOptions {
         width,
         height,
@@ -92,7 +94,7 @@ pub fn render_reference(
         CellOptions::default(),
         progress,
     )
-    .film
+    .map(|r| r.film)
 }
 
 /// The sweep's bounds.
@@ -151,23 +153,24 @@ pub fn work_units(rows: u32, spp: u32) -> u64 {
 }
 
 /// Renders every point of `knobs` and measures it against `reference`;
-/// `progress` is told work units (`work_units`) as rows finish.
+/// `progress` is told work units (`work_units`) as rows finish. Stops at
+/// the first point that fails (`render_point`).
 pub fn sweep(
     scene: &Scene,
     reference: &DisplayImage,
     opts: &SweepOptions,
     knobs: &[Knobs],
     progress: &(dyn Fn(u64) + Sync),
-) -> Vec<Point> {
-    let mut points: Vec<Point> = knobs
+) -> Result<Vec<Point>> {
+    let mut points = knobs
         .iter()
         .map(|k| {
             let mut s = scene.clone();
             s.max_depth = k.max_depth;
             let units = |rows: u32| progress(work_units(rows, k.spp));
-            let r = render_point(&s, opts.width, opts.height, opts.threads, k, &units);
+            let r = render_point(&s, opts.width, opts.height, opts.threads, k, &units)?;
             let display = reference.comparable(&r.film.to_linear());
-            Point {
+            Ok(Point {
                 knobs: *k,
                 family: k.family(scene.max_depth),
                 dimension: None,
@@ -180,11 +183,11 @@ pub fn sweep(
                 refined_pixels: r.refined_pixels,
                 rays: r.stats.rays.total(),
                 pareto: false,
-            }
+            })
         })
-        .collect();
+        .collect::<Result<Vec<Point>>>()?;
     report::quality::mark_pareto(&mut points);
-    points
+    Ok(points)
 }
 
 /// The points the model's error is measured on: one and four samples per

@@ -8,6 +8,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Instant;
 
 use crate::cells::{CellOptions, CellStructure, CellTracer};
+use crate::error::{Error, Result};
 use crate::reference::RothTracer;
 use crate::scene::Scene;
 use crate::trace::{CameraFrame, Film, RayCounts, RayJob, Shader, Tracer};
@@ -164,14 +165,15 @@ const BAND_ROWS: u32 = 4;
 /// Renders on this host with any synchronous tracer: `make_tracer` builds
 /// one per thread; `skip_primary` asks the thread's tracer which primary
 /// rays need no tracing (the paper's pixel areas) and only see the
-/// background; `progress` is told rows done.
+/// background; `progress` is told rows done. Fails (`Error::Render`) only
+/// if the OS refuses a thread.
 pub fn render_with<T, M, S>(
     scene: &Scene,
     opts: &RenderOptions,
     make_tracer: M,
     skip_primary: S,
     progress: &(dyn Fn(u32) + Sync),
-) -> (Film, RenderStats)
+) -> Result<(Film, RenderStats)>
 where
     T: Tracer,
     M: Fn() -> T + Sync,
@@ -197,6 +199,13 @@ where
 /// host over `threads` threads, with the same tracer arguments as
 /// `render_with`. The film is full-size and zero outside the pass's
 /// pixels; `progress` is told every band of rows, traced or empty.
+///
+/// Fails (`Error::Render`, naming the thread) if the OS refuses to start
+/// a thread (too many threads, no memory for a stack): the threads
+/// already started stop after their band, and no film is returned. A
+/// render does not go on with fewer threads than asked for, as a slower
+/// run that says nothing would mislead the timings `quality` and the
+/// benches take.
 pub fn render_pass_with<T, M, S>(
     scene: &Scene,
     pass: &Pass<'_>,
@@ -204,7 +213,7 @@ pub fn render_pass_with<T, M, S>(
     make_tracer: M,
     skip_primary: S,
     progress: &(dyn Fn(u32) + Sync),
-) -> (Film, RenderStats)
+) -> Result<(Film, RenderStats)>
 where
     T: Tracer,
     M: Fn() -> T + Sync,
@@ -221,71 +230,81 @@ where
     // a 4096×4096 film is 400 MB, and a second copy in bands doubled the
     // peak (`docs/robustness.md`). Fixed-point sums make the order free.
     let image = Mutex::new(Film::new(width, height));
-    let results: Vec<(RenderStats, TraceCounters)> = std::thread::scope(|s| {
-        let handles: Vec<_> = (0..threads)
-            .map(|_| {
-                s.spawn(|| {
-                    let mut tracer = make_tracer();
-                    let mut stats = RenderStats::default();
-                    let mut stack = Vec::new();
-                    let mut jobs = Vec::new();
-                    loop {
-                        let b = next_band.fetch_add(1, Ordering::Relaxed);
-                        if b >= bands {
-                            break;
-                        }
-                        let y0 = b * BAND_ROWS;
-                        let rows = BAND_ROWS.min(height - y0);
-                        // A band without pixels of the pass (pass 2 of
-                        // adaptive sampling) costs no film.
-                        let mut film = None;
-                        for pixel in pass.pixels.in_rows(y0, rows) {
-                            let film = film.get_or_insert_with(|| Film::band(width, y0, rows));
-                            jobs.clear();
-                            pass.pixel_jobs(&cam, pixel, &mut jobs);
-                            let mut traced = false;
-                            for job in jobs.drain(..) {
-                                if skip_primary(&mut tracer, &job) {
-                                    // Exactly what tracing would give: a miss.
-                                    film.add(job.pixel, shader.miss(&job));
-                                } else {
-                                    traced = true;
-                                    shader.run_path(
-                                        &mut tracer,
-                                        job,
-                                        film,
-                                        &mut stats.rays,
-                                        &mut stack,
-                                    );
-                                }
-                            }
-                            if traced {
-                                stats.pixels_traced += 1;
-                            } else {
-                                stats.pixels_background += 1;
-                            }
-                        }
-                        if let Some(film) = film {
-                            image
-                                .lock()
-                                .expect("poisoned only by a panic in merge, a bug")
-                                .merge(&film);
-                        }
-                        progress(rows);
+    // One thread's whole share: bands taken in turn until none is left.
+    let work = || {
+        let mut tracer = make_tracer();
+        let mut stats = RenderStats::default();
+        let mut stack = Vec::new();
+        let mut jobs = Vec::new();
+        loop {
+            let b = next_band.fetch_add(1, Ordering::Relaxed);
+            if b >= bands {
+                break;
+            }
+            let y0 = b * BAND_ROWS;
+            let rows = BAND_ROWS.min(height - y0);
+            // A band without pixels of the pass (pass 2 of
+            // adaptive sampling) costs no film.
+            let mut film = None;
+            for pixel in pass.pixels.in_rows(y0, rows) {
+                let film = film.get_or_insert_with(|| Film::band(width, y0, rows));
+                jobs.clear();
+                pass.pixel_jobs(&cam, pixel, &mut jobs);
+                let mut traced = false;
+                for job in jobs.drain(..) {
+                    if skip_primary(&mut tracer, &job) {
+                        // Exactly what tracing would give: a miss.
+                        film.add(job.pixel, shader.miss(&job));
+                    } else {
+                        traced = true;
+                        shader.run_path(&mut tracer, job, film, &mut stats.rays, &mut stack);
                     }
-                    let c = tracer.counters();
-                    (stats, c)
-                })
-            })
-            .collect();
-        handles
+                }
+                if traced {
+                    stats.pixels_traced += 1;
+                } else {
+                    stats.pixels_background += 1;
+                }
+            }
+            if let Some(film) = film {
+                image
+                    .lock()
+                    .expect("poisoned only by a panic in merge, a bug")
+                    .merge(&film);
+            }
+            progress(rows);
+        }
+        let c = tracer.counters();
+        (stats, c)
+    };
+    let results = std::thread::scope(|s| -> Result<Vec<(RenderStats, TraceCounters)>> {
+        let mut handles = Vec::with_capacity(threads);
+        for i in 0..threads {
+            let started = std::thread::Builder::new()
+                .name(format!("hypercast-render-{i}"))
+                .spawn_scoped(s, work);
+            match started {
+                Ok(h) => handles.push(h),
+                Err(e) => {
+                    // No band is handed out any more: the threads
+                    // started finish the one they hold, and the scope
+                    // joins them.
+                    next_band.store(bands, Ordering::Relaxed);
+                    return Err(Error::Render(format!(
+                        "cannot start render thread {} of {threads}: {e}",
+                        i + 1
+                    )));
+                }
+            }
+        }
+        Ok(handles
             .into_iter()
             .map(|h| {
                 h.join()
                     .expect("a render thread panicked (a bug, not bad input)")
             })
-            .collect()
-    });
+            .collect())
+    })?;
     // Every thread was joined without a panic above, so none poisoned it.
     let film = image.into_inner().expect("no render thread panicked");
     let mut stats = RenderStats::default();
@@ -294,10 +313,16 @@ where
         stats.counters.merge(c);
     }
     stats.wall_seconds = start.elapsed().as_secs_f64();
-    (film, stats)
+    Ok((film, stats))
 }
 
-/// Renders with Roth's brute force.
+/// Renders with Roth's brute force. For tests and benches: a thin
+/// `render_host`, infallible where its two dozen callers want it so.
+///
+/// # Panics
+///
+/// If the OS refuses a render thread (`render_pass_with`); the command
+/// line renders through `render_host`, which reports that as an error.
 pub fn render_roth(
     scene: &Scene,
     opts: &RenderOptions,
@@ -310,19 +335,26 @@ pub fn render_roth(
         Accel::Roth,
         CellOptions::default(),
         progress,
-    );
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
     (r.film, r.stats)
 }
 
 /// Renders with the paper's cells: builds the subdivision for the camera,
-/// then traces only the pixel areas.
+/// then traces only the pixel areas. For tests and benches, as
+/// `render_roth` is.
+///
+/// # Panics
+///
+/// If the OS refuses a render thread, as `render_roth`.
 pub fn render_cells(
     scene: &Scene,
     opts: &RenderOptions,
     cell_opts: CellOptions,
     progress: &(dyn Fn(u32) + Sync),
 ) -> (Film, RenderStats, CellStructure) {
-    let r = render_host(scene, opts, None, Accel::Cells, cell_opts, progress);
+    let r = render_host(scene, opts, None, Accel::Cells, cell_opts, progress)
+        .unwrap_or_else(|e| panic!("{e}"));
     let cs = r
         .cells
         .expect("render_host with Accel::Cells returns the structure it built");
@@ -345,6 +377,7 @@ pub struct HostRender {
 /// `opts.spp` samples per pixel in pass 1, then `adaptive`'s refinement.
 /// The one entry point of CLI renders and quality points; the subdivision
 /// is built once for both passes. `progress` is told rows of every pass.
+/// Fails (`Error::Render`) only if the OS refuses a thread.
 pub fn render_host(
     scene: &Scene,
     opts: &RenderOptions,
@@ -352,7 +385,7 @@ pub fn render_host(
     accel: Accel,
     cell_opts: CellOptions,
     progress: &(dyn Fn(u32) + Sync),
-) -> HostRender {
+) -> Result<HostRender> {
     let start = Instant::now();
     let cells = match accel {
         Accel::Roth => None,
@@ -369,7 +402,7 @@ pub fn render_host(
     };
     let mut stats = RenderStats::default();
     let mut passes = 0;
-    let rendered = aa::render_adaptive(opts.width, opts.height, &sampling, |pass| {
+    let (film, aa) = aa::render_adaptive(opts.width, opts.height, &sampling, |pass| {
         let (film, s) = match &cells {
             None => render_pass_with(
                 scene,
@@ -378,7 +411,7 @@ pub fn render_host(
                 || RothTracer::new(scene),
                 |_, _| false,
                 progress,
-            ),
+            )?,
             Some(cs) => render_pass_with(
                 scene,
                 pass,
@@ -386,7 +419,7 @@ pub fn render_host(
                 || CellTracer::new(cs, scene),
                 |tracer, job| tracer.skips_primary(&job.ray),
                 progress,
-            ),
+            )?,
         };
         if passes == 0 {
             stats.merge(&s);
@@ -396,19 +429,15 @@ pub fn render_host(
             stats.counters.merge(&s.counters);
         }
         passes += 1;
-        Ok::<Film, std::convert::Infallible>(film)
-    });
-    let (film, aa) = match rendered {
-        Ok(r) => r,
-        Err(never) => match never {},
-    };
+        Ok::<Film, Error>(film)
+    })?;
     stats.wall_seconds = start.elapsed().as_secs_f64();
-    HostRender {
+    Ok(HostRender {
         film,
         stats,
         cells,
         aa,
-    }
+    })
 }
 
 #[cfg(test)]

@@ -101,7 +101,7 @@ pub fn run(a: QualityArgs) -> Result<()> {
             pb.set_prefix("reference");
             let units = |rows: u32| pb.inc(quality::work_units(rows, a.reference_spp));
             let film =
-                quality::render_reference(&scene, width, height, threads, a.reference_spp, &units);
+                quality::render_reference(&scene, width, height, threads, a.reference_spp, &units)?;
             // Kept, so that a later sweep can reuse it with --reference.
             report::write_image(
                 &a.out.join("reference.exr"),
@@ -120,7 +120,7 @@ pub fn run(a: QualityArgs) -> Result<()> {
         max_spp: a.max_spp,
     };
     let units = |u: u64| pb.inc(u);
-    let mut points = quality::sweep(&scene, &reference, &opts, &knobs, &units);
+    let mut points = quality::sweep(&scene, &reference, &opts, &knobs, &units)?;
     // Calibrated after the sweep and before the runs it serves, on a host
     // busy with nothing else of ours.
     pb.set_prefix("model");

@@ -57,12 +57,10 @@ impl Topology {
         }
     }
 
-    /// Reads a topology file.
+    /// Reads a topology file: a regular file of at most
+    /// `input::MAX_INPUT_BYTES` (`crate::input`).
     pub fn load(path: &Path) -> Result<Topology> {
-        let text = std::fs::read_to_string(path).map_err(|source| Error::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text = crate::input::read_to_string(path)?;
         parse_topology(&text, path)
     }
 

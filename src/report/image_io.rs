@@ -243,15 +243,23 @@ impl DisplayImage {
 }
 
 /// Reads an image as display values (sRGB-encoded, [0, 1]); EXR files are
-/// linear and are encoded the same way as rendered pixels.
+/// linear and are encoded the same way as rendered pixels. Only a regular
+/// file of at most `input::MAX_INPUT_BYTES` is read (`crate::input`); the
+/// decoders' own limits (`image::Limits`) bound what decoding allocates.
 pub fn read_display_image(path: &Path) -> Result<DisplayImage> {
-    let img = image::open(path).map_err(|e| match e {
+    let file = crate::input::open(path)?;
+    let refused = |e: image::ImageError| match e {
         image::ImageError::IoError(source) => Error::Read {
             path: path.to_path_buf(),
             source,
         },
         other => Error::Usage(format!("{}: not a readable image: {other}", path.display())),
-    })?;
+    };
+    // As `image::open` does: the format by the extension, none guessed.
+    let format = ImageFormat::from_path(path).map_err(refused)?;
+    let img = image::ImageReader::with_format(std::io::BufReader::new(file), format)
+        .decode()
+        .map_err(refused)?;
     let linear_file = matches!(OutputFormat::for_path(path), Ok(OutputFormat::Exr));
     let (w, h) = (img.width(), img.height());
     let px: Vec<[f32; 3]> = if linear_file {

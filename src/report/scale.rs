@@ -28,7 +28,7 @@ pub struct ScaleRow {
     pub nodes: usize,
     /// Medians over the repeats (balanced mapping); speedups (and so
     /// efficiencies) are the median over the rounds of the ratio to the
-    /// first dimension's run of the same round.
+    /// first (smallest) dimension's run of the same round.
     pub wall_seconds: f64,
     pub virtual_seconds: f64,
     pub speedup_wall: f64,
@@ -126,10 +126,16 @@ fn busy(r: &MachineStats) -> f64 {
     r.per_node.iter().map(|n| n.busy_seconds).sum()
 }
 
-/// Parses `--dims`: `A..B` (inclusive) or a list `0,2,5`.
+/// Parses `--dims`: `A..B` (inclusive) or a list `0,2,5`, into ascending
+/// order. A dimension given twice is refused, naming it: the second run
+/// would only repeat a row of the table (`--repeat` is how to measure a
+/// dimension again). The order is ascending whatever the list's, because
+/// speedups and efficiencies are taken against the first dimension's runs
+/// (`measure`): that must be the smallest, or `1,0` measured one node
+/// against two.
 pub fn parse_dims(s: &str) -> std::result::Result<Vec<u32>, String> {
     let bad = || format!("--dims: expected a range like 0..5 or a list like 0,2,5, got {s:?}");
-    let dims: Vec<u32> = if let Some((a, b)) = s.split_once("..") {
+    let mut dims: Vec<u32> = if let Some((a, b)) = s.split_once("..") {
         let a: u32 = a.trim().parse().map_err(|_| bad())?;
         let b: u32 = b
             .trim_start_matches('=')
@@ -147,6 +153,13 @@ pub fn parse_dims(s: &str) -> std::result::Result<Vec<u32>, String> {
     };
     if dims.is_empty() {
         return Err(bad());
+    }
+    dims.sort_unstable();
+    if let Some(w) = dims.windows(2).find(|w| w[0] == w[1]) {
+        return Err(format!(
+            "--dims: {} is given more than once; name each dimension once (--repeat runs them again)",
+            w[0]
+        ));
     }
     if let Some(d) = dims.iter().find(|&&d| d > machine::topology::MAX_DIMENSION) {
         return Err(format!(
@@ -170,7 +183,10 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
-/// Runs the experiment. `progress(done, total)` counts renders.
+/// Runs the experiment over `dims`, strictly ascending as `parse_dims`
+/// gives them (anything else is refused as a usage error): speedups are
+/// against the first, so the smallest. `progress(done, total)` counts
+/// renders.
 pub fn measure(
     scene: &Scene,
     topo: &Topology,
@@ -179,6 +195,11 @@ pub fn measure(
     opts: &MachineOptions,
     progress: &dyn Fn(usize, usize),
 ) -> Result<Vec<ScaleRow>> {
+    if !dims.is_sorted_by(|a, b| a < b) {
+        return Err(Error::Usage(format!(
+            "--dims: the dimensions must be distinct and ascending, got {dims:?}"
+        )));
+    }
     let total = dims.len() * (repeat.max(1) as usize + 1);
     let mut done = 0;
     let mut first: Option<Film> = None;
@@ -667,6 +688,20 @@ mod tests {
         assert!(parse_dims("5..2").is_err());
         assert!(parse_dims("x").is_err());
         assert!(parse_dims("0..11").is_err());
+    }
+
+    /// Audit: `--dims 2,2` gave two rows of one dimension, and `--dims
+    /// 1,0` speedups of one node measured against two. A repeat is refused
+    /// naming it; a list in any order runs smallest first.
+    #[test]
+    fn dims_are_ascending_and_each_given_once() {
+        assert_eq!(parse_dims("1,0"), Ok(vec![0, 1]));
+        assert_eq!(parse_dims("5, 0,2"), Ok(vec![0, 2, 5]));
+        for (repeated, d) in [("2,2", 2), ("0,3,1,3", 3), ("4,1,4,4", 4)] {
+            let e = parse_dims(repeated).expect_err(repeated);
+            let want = format!("--dims: {d} is given more than once");
+            assert!(e.starts_with(&want), "{repeated}: {e}");
+        }
     }
 
     #[test]

@@ -146,12 +146,10 @@ pub fn load_model(path: &Path) -> Result<SceneFile> {
     })?
 }
 
-/// A scene file's text: UTF-8, without a byte-order mark.
+/// A scene file's text: UTF-8, without a byte-order mark. Only a regular
+/// file of at most `input::MAX_INPUT_BYTES` is read (`crate::input`).
 fn read_text(path: &Path) -> Result<String> {
-    let bytes = std::fs::read(path).map_err(|source| Error::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let bytes = crate::input::read(path)?;
     let text = match String::from_utf8(bytes) {
         Ok(t) => t,
         Err(e) => {

@@ -375,7 +375,8 @@ fn differences(scene: &Scene, opts: &RenderOptions, choice: SegmentChoice) -> St
         },
         |_, _| false,
         &|_| {},
-    );
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
     let diffs = diffs.into_inner().unwrap();
     out += &format!("{} rays differ\n", diffs.len());
     for d in diffs.iter().take(10) {
@@ -524,6 +525,7 @@ fn random_scenes_render_identically_with_the_shadow_shortcuts() {
                     |t, j| t.0.skips_primary(&j.ray),
                     &|_| {},
                 )
+                .unwrap_or_else(|e| panic!("{e}"))
                 .1;
                 if stats.counters.intersection_tests < plain.counters.intersection_tests {
                     saved += 1;

@@ -2,7 +2,8 @@
 //! nothing written on failure, images and statistics on success.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
 
 use crate::util;
 
@@ -39,11 +40,15 @@ pub(crate) fn path_str(p: &Path) -> &str {
 /// What every refusal must look like: exit 2, one line on stderr naming
 /// the problem, no panic, nothing written. Returns the problems found.
 pub(crate) fn check_refusal(dir: &Path, args: &[&str], expected: &str) -> Vec<String> {
-    let o = run(dir, args);
-    let err = stderr(&o);
+    check_failure(dir, args, &run(dir, args), 2, expected)
+}
+
+/// `check_refusal` of a run already made, with exit status `code`.
+fn check_failure(dir: &Path, args: &[&str], o: &Output, code: i32, expected: &str) -> Vec<String> {
+    let err = stderr(o);
     let mut problems = Vec::new();
-    if o.status.code() != Some(2) {
-        problems.push(format!("exit status {:?}, want 2", o.status.code()));
+    if o.status.code() != Some(code) {
+        problems.push(format!("exit status {:?}, want {code}", o.status.code()));
     }
     if err.trim_end_matches('\n').contains('\n') || err.is_empty() {
         problems.push("stderr is not exactly one line".into());
@@ -171,6 +176,153 @@ fn bad_options_are_refused_before_rendering() {
         problems.len(),
         problems.join("\n")
     );
+}
+
+/// How long `run_bounded` waits: the refusals it runs take milliseconds.
+const BOUND_SECONDS: u64 = 30;
+
+/// Runs `hypercast` as `run` does, within 2 GiB of address space (the
+/// scene loader reserves a 1 GiB stack) and `BOUND_SECONDS`, so that an
+/// input read without bound fails the test and spares the host:
+/// `/dev/zero` read whole filled memory, and a named pipe waited for a
+/// writer for ever.
+fn run_bounded(dir: &Path, args: &[&str]) -> Result<Output, String> {
+    let mut child = Command::new("sh")
+        .arg("-c")
+        .arg("ulimit -v 2097152 && exec \"$0\" \"$@\"")
+        .arg(BIN)
+        .args(args)
+        .current_dir(dir)
+        .env("RUST_BACKTRACE", "1")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("sh runs the binary");
+    let deadline = Instant::now() + Duration::from_secs(BOUND_SECONDS);
+    while child
+        .try_wait()
+        .expect("the binary is waited for")
+        .is_none()
+    {
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            return Err(format!(
+                "hypercast {}: still running after {BOUND_SECONDS} s",
+                args.join(" ")
+            ));
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    Ok(child.wait_with_output().expect("the binary's output"))
+}
+
+/// Audit: a scene, topology or reference image that is not a regular file
+/// was read without a bound: `/dev/zero` (here through a link with the
+/// scene's extension) until memory ran out, a named pipe not at all, as
+/// the run waited for a writer. Each is refused at once, naming the path
+/// and what it is; so is a file above the 1 GiB limit (sparse: nothing is
+/// written).
+#[test]
+fn inputs_that_are_not_regular_files_or_too_large_are_refused_at_once() {
+    let inputs = tempfile::tempdir().unwrap();
+    let at = |name: &str| path_str(&inputs.path().join(name)).to_owned();
+    for ext in ["ron", "png"] {
+        std::fs::create_dir(at(&format!("folder.{ext}"))).unwrap();
+        std::os::unix::fs::symlink("/dev/zero", at(&format!("zero.{ext}"))).unwrap();
+        let made = Command::new("mkfifo")
+            .arg(at(&format!("pipe.{ext}")))
+            .status()
+            .expect("mkfifo runs");
+        assert!(made.success(), "mkfifo");
+    }
+    let limit = hypercast::input::MAX_INPUT_BYTES;
+    std::fs::File::create(at("big.ron"))
+        .unwrap()
+        .set_len(limit + 1)
+        .unwrap();
+    let sphere = util::repo("scenes/small/sphere.ron");
+    let sphere = path_str(&sphere);
+    let what = [
+        ("folder", "is a folder, not a regular file"),
+        ("zero", "is a character device, not a regular file"),
+        ("pipe", "is a named pipe, not a regular file"),
+    ];
+    let mut cases: Vec<(Vec<String>, String)> = Vec::new();
+    let args = |a: &[&str]| a.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+    for (name, why) in what {
+        let (ron, png) = (at(&format!("{name}.ron")), at(&format!("{name}.png")));
+        let want = |p: &str| format!("{p}: cannot read: {why}");
+        cases.push((args(&["render", &ron, "-o", "out.png"]), want(&ron)));
+        cases.push((args(&["convert", &ron, "-o", "out.json"]), want(&ron)));
+        cases.push((
+            args(&["render", sphere, "-o", "out.png", "--topology", &ron]),
+            want(&ron),
+        ));
+        cases.push((
+            args(&["render", sphere, "-o", "out.png", "--reference", &png]),
+            want(&png),
+        ));
+    }
+    let big = at("big.ron");
+    cases.push((
+        args(&["render", &big, "-o", "out.png"]),
+        format!(
+            "{big}: cannot read: is {} bytes, more than the 1 GiB an input file may be",
+            limit + 1
+        ),
+    ));
+    let mut problems = Vec::new();
+    for (args, want) in &cases {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let tmp = tempfile::tempdir().unwrap();
+        match run_bounded(tmp.path(), &args) {
+            Ok(o) => problems.extend(check_failure(tmp.path(), &args, &o, 2, want)),
+            Err(e) => problems.push(e),
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+/// Audit: a render thread the OS refused to start was a panic
+/// (`std::thread::Scope::spawn`). It is a failed render now: exit 1, one
+/// line naming the thread, no image. The OS refuses for real here: every
+/// thread started without a stack size of its own (the render's; the
+/// scene loader and the machine's nodes set theirs) asks for a stack
+/// larger than any address space (`RUST_MIN_STACK`, 2^62 bytes).
+#[test]
+fn a_render_thread_the_os_refuses_is_a_failed_render_not_a_panic() {
+    let tmp = tempfile::tempdir().unwrap();
+    let sphere = util::repo("scenes/small/sphere.ron");
+    let args = [
+        "render",
+        path_str(&sphere),
+        "-o",
+        "out.png",
+        "--accel",
+        "roth",
+        "--threads",
+        "2",
+        "--width",
+        "40",
+        "--height",
+        "30",
+    ];
+    let o = Command::new(BIN)
+        .args(args)
+        .current_dir(tmp.path())
+        .env("RUST_BACKTRACE", "1")
+        .env("RUST_MIN_STACK", (1u64 << 62).to_string())
+        .output()
+        .expect("the binary runs");
+    let problems = check_failure(
+        tmp.path(),
+        &args,
+        &o,
+        1,
+        "hypercast: error: cannot start render thread 1 of 2: ",
+    );
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
 
 /// An output that would replace an input, or another output, is refused
@@ -701,6 +853,43 @@ fn scale_refuses_a_dimension_that_does_not_fit_and_writes_nothing() {
     args.extend(["--out", "out"]);
     let problems = check_refusal(tmp.path(), &args, "at d = 0: node 0 needs");
     assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+/// Audit: `scale --dims 2,2` ran dimension 2 twice (two rows of one
+/// dimension), and `--dims 1,0` took speedups against two nodes. A
+/// dimension given twice is a usage error naming it, before the scene is
+/// read; a list in any order runs smallest first, the baseline of the
+/// speedups.
+#[test]
+fn scale_refuses_a_repeated_dimension_and_runs_the_smallest_first() {
+    let scene = util::repo("scenes/small/mirror.ron");
+    let scene = path_str(&scene);
+    let mut problems = Vec::new();
+    for (dims, d) in [("2,2", 2), ("1,0,1", 1)] {
+        let tmp = tempfile::tempdir().unwrap();
+        problems.extend(check_refusal(
+            tmp.path(),
+            &["scale", scene, "--dims", dims, "--out", "out"],
+            &format!("--dims: {d} is given more than once"),
+        ));
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+    let tmp = tempfile::tempdir().unwrap();
+    let args = [
+        "scale", scene, "--dims", "1,0", "--width", "40", "--height", "30", "--out", "out", "-q",
+    ];
+    let o = run(tmp.path(), &args);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let csv = std::fs::read_to_string(tmp.path().join("out/scaling.csv")).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    let dims: Vec<&str> = rows.iter().map(|r| r[col("dimension")]).collect();
+    assert_eq!(dims, ["0", "1"], "{csv}");
+    for k in ["speedup_wall", "speedup_virtual", "work_ratio"] {
+        assert_eq!(rows[0][col(k)].parse::<f64>(), Ok(1.0), "{k}: {csv}");
+    }
 }
 
 /// The README's examples of an error (a `$ hypercast ...` line followed by

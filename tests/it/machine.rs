@@ -354,7 +354,8 @@ fn random_scenes_on_random_dimensions_equal_one_node() {
             Accel::Cells,
             CellOptions::default(),
             &|_| {},
-        );
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
         let mut o = MachineOptions::new(w, h, spp);
         o.capacity = capacity;
         o.mapping = mapping;
@@ -743,7 +744,8 @@ fn four_spp_and_adaptive_images_are_bit_identical_for_d_0_3_5() {
             Accel::Cells,
             CellOptions::default(),
             &|_| {},
-        );
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
         for d in [0, 3, 5] {
             let o = MachineOptions::new(w, h, 4);
             let (film, stats, _, summary) =

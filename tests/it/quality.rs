@@ -40,7 +40,8 @@ fn render(
         accel,
         CellOptions::default(),
         &|_| {},
-    );
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
     util::assert_finite(&r.film);
     r
 }
