@@ -325,7 +325,8 @@ impl Plan {
     /// memory the refusal names is the least that would do. The other
     /// plans are made only where the first does not fit or scatters.
     /// Fails (`Error::Render`) only if the OS refuses a thread of the
-    /// mapping's pre-pass (`mapping::map`).
+    /// build (`CellStructure::build`) or of the mapping's pre-pass
+    /// (`mapping::map`).
     pub fn new(scene: &Scene, topo: &Topology, opts: &MachineOptions) -> Result<Plan> {
         let first = Plan::with_subdivision(scene, topo, opts, Subdivision::Balanced)?;
         if topo.dimension == 0 {
@@ -391,7 +392,7 @@ impl Plan {
             ..opts.cells
         };
         let (w, h) = (opts.width, opts.height);
-        let mut cells = CellStructure::build(scene, w, h, cell_opts);
+        let mut cells = CellStructure::build(scene, w, h, cell_opts)?;
         let t_pre = Instant::now();
         // A super cell is never split over nodes: where the mapping's
         // estimate finds one much heavier than a node's share, the build
@@ -422,7 +423,7 @@ impl Plan {
                 h,
                 cell_opts,
                 &[&next_hot[0], &next_hot[1]],
-            );
+            )?;
             let (next_work, next_owner, moves) = mapping::map(&next, scene, w, h, opts.mapping, d)?;
             // Splits trade messages for balance; past this, they cost more
             // than they even out (`HOT_CROSSINGS`).

@@ -659,7 +659,7 @@ mod tests {
             min_super_cells,
             ..CellOptions::default()
         };
-        (CellStructure::build(&scene, 64, 64, opts), scene)
+        (CellStructure::build(&scene, 64, 64, opts).unwrap(), scene)
     }
 
     /// Whether two rectangles share a piece of an edge.

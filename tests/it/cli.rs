@@ -287,8 +287,10 @@ fn inputs_that_are_not_regular_files_or_too_large_are_refused_at_once() {
 /// Audit: a thread the OS refused to start was a panic
 /// (`std::thread::Scope::spawn`): the render threads of `--accel roth`,
 /// then the mapping's pre-pass, which the default render (cells on the
-/// modelled machine), `inspect` and `scale` all run. It is a failed run
-/// now: exit 1, one line naming the thread, no image, statistics or
+/// modelled machine), `inspect` and `scale` all run, and the build's
+/// depth cuts on a large scene (`cells::PARALLEL_CUT_PRIMS`; on a host
+/// of two cores or more, else the pre-pass is refused). It is a failed
+/// run now: exit 1, one line naming the thread, no image, statistics or
 /// folder, nothing on stdout. The OS refuses for real here: every thread
 /// started without a stack size of its own (the scene loader and the
 /// machine's nodes set theirs) asks for a stack larger than any address
@@ -297,8 +299,14 @@ fn inputs_that_are_not_regular_files_or_too_large_are_refused_at_once() {
 fn a_thread_the_os_refuses_is_a_failed_run_not_a_panic() {
     let sphere = util::repo("scenes/small/sphere.ron");
     let sphere = path_str(&sphere);
+    let flake = util::repo("scenes/sphereflake4.nff");
+    let flake = path_str(&flake);
+    let cut = match std::thread::available_parallelism().map_or(1, |n| n.get()) {
+        1 => "hypercast: error: cannot start pre-pass thread 1 of 1: ",
+        _ => "hypercast: error: cannot start cell build thread 1 of ",
+    };
     let size = ["--width", "40", "--height", "30"];
-    let cases: [(&[&str], &str); 4] = [
+    let cases: [(&[&str], &str); 5] = [
         (
             &[
                 "render",
@@ -324,6 +332,7 @@ fn a_thread_the_os_refuses_is_a_failed_run_not_a_panic() {
             &["scale", sphere, "--dims", "0..1", "--out", "out"],
             "hypercast: error: at d = 0: cannot start pre-pass thread 1 of ",
         ),
+        (&["render", flake, "-o", "out.png"], cut),
     ];
     let mut problems = Vec::new();
     for (args, want) in cases {

@@ -195,7 +195,8 @@ fn heavy_super_cells_are_split_for_the_balance() {
             min_super_cells: SUPER_CELLS_PER_NODE << d,
             ..CellOptions::default()
         },
-    );
+    )
+    .unwrap();
     let (work, _, _) =
         machine::mapping::map(&plain, &scene, w, h, machine::Mapping::Balanced, d).unwrap();
     let heaviest = |work: &[Vec<f64>; 2]| {
