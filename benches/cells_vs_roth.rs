@@ -56,7 +56,7 @@ fn timed<T>(f: impl FnOnce() -> T) -> (f64, f64, T) {
 
 /// Builds the structure and renders with it (both timed together).
 fn cells(scene: &Scene, o: &RenderOptions) -> (RenderStats, CellStructure) {
-    let cs = CellStructure::build(scene, o.width, o.height, CellOptions::default());
+    let cs = CellStructure::build(scene, o.width, o.height, CellOptions::default()).unwrap();
     let (_, st) = render_with(
         scene,
         o,
@@ -163,7 +163,7 @@ fn main() {
     // Build time alone for 10,000 primitives (a sphereflake of level 5 has
     // 66,430; level 4 plus random CSG would mix costs, so time both).
     let t = Instant::now();
-    let cs = CellStructure::build(&flake, 512, 512, CellOptions::default());
+    let cs = CellStructure::build(&flake, 512, 512, CellOptions::default()).unwrap();
     println!(
         "\nsubdivision build, sphereflake level 4 ({} primitives): {:.3} s ({} cells)",
         flake.primitives.len(),
@@ -177,7 +177,7 @@ fn main() {
     .expect("random scene")
     .0;
     let t = Instant::now();
-    let cs = CellStructure::build(&rc, 512, 512, CellOptions::default());
+    let cs = CellStructure::build(&rc, 512, 512, CellOptions::default()).unwrap();
     println!(
         "subdivision build, random CSG ({} primitives): {:.3} s ({} cells)",
         rc.primitives.len(),

@@ -765,7 +765,7 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
     // more super cells on more nodes, `CellOptions::min_super_cells`).
     let topo = a.machine.topology()?;
     let mopts = a.machine.options(width, height, 1, a.bsp.into())?;
-    let plan = machine::host::Plan::new(&scene, &topo, &mopts);
+    let plan = machine::host::Plan::new(&scene, &topo, &mopts)?;
     let cs = &plan.cells;
     let s = &cs.stats;
     let front = cs.region(crate::cells::Region::Front);

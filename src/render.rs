@@ -346,7 +346,8 @@ pub fn render_roth(
 ///
 /// # Panics
 ///
-/// If the OS refuses a render thread, as `render_roth`.
+/// If the OS refuses a render thread or one of the build's
+/// (`CellStructure::build`), as `render_roth`.
 pub fn render_cells(
     scene: &Scene,
     opts: &RenderOptions,
@@ -394,7 +395,7 @@ pub fn render_host(
             opts.width,
             opts.height,
             cell_opts,
-        )),
+        )?),
     };
     let sampling = Sampling {
         spp: opts.spp,

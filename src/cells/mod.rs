@@ -15,6 +15,7 @@ use std::collections::HashMap;
 use std::time::Instant;
 
 use crate::csg::{CsgNode, CsgTree, NodeId, Op, PrimId, Primitive};
+use crate::error::{Error, Result};
 use crate::geom::{Aabb, Vec3};
 use crate::scene::Scene;
 use crate::trace::CameraFrame;
@@ -286,7 +287,14 @@ impl CellStructure {
     }
 
     /// Builds the subdivision (sections 3-6) of `scene` for its camera.
-    pub fn build(scene: &Scene, width: u32, height: u32, opts: CellOptions) -> CellStructure {
+    /// Fails (`Error::Render`) only if the OS refuses a thread of the
+    /// depth cuts (`cut_super_cells`).
+    pub fn build(
+        scene: &Scene,
+        width: u32,
+        height: u32,
+        opts: CellOptions,
+    ) -> Result<CellStructure> {
         Self::build_with_hot(scene, width, height, opts, &[[].as_slice(), &[]])
     }
 
@@ -298,7 +306,7 @@ impl CellStructure {
         height: u32,
         opts: CellOptions,
         hot: &[&[bsp::Hot]; 2],
-    ) -> CellStructure {
+    ) -> Result<CellStructure> {
         let start = Instant::now();
         let cam = CameraFrame::new(scene, width, height);
         let view = View::new(&cam);
@@ -341,7 +349,7 @@ impl CellStructure {
         // super cell over its whole depth, in both regions
         // (`View::eye_at_boundary`): its corners give the depth, unclipped.
         let whole: Vec<bool> = prim_box.iter().map(|b| view.eye_at_boundary(b)).collect();
-        let regions = Region::BOTH.map(|region| {
+        let mut region_cells = |region: Region| -> Result<RegionCells> {
             let projected: Vec<Option<(Rect, f64, f64)>> = prim_box
                 .iter()
                 .map(|b| view.project_box(b, region))
@@ -404,7 +412,7 @@ impl CellStructure {
                 &cam_boxes,
                 &whole,
                 opts.build_threads,
-            );
+            )?;
             let mut first_cell = Vec::with_capacity(partition.leaves.len() + 1);
             let (mut zlos, mut subtree_of) = (Vec::new(), Vec::new());
             for cells in cut {
@@ -433,7 +441,7 @@ impl CellStructure {
                     stitches: l.stitches,
                 })
                 .collect();
-            RegionCells {
+            Ok(RegionCells {
                 region,
                 partition,
                 first_cell,
@@ -441,8 +449,9 @@ impl CellStructure {
                 subtree: subtree_of,
                 supers,
                 remote_hull: Vec::new(),
-            }
-        });
+            })
+        };
+        let regions = [region_cells(Region::Front)?, region_cells(Region::Back)?];
         // The distinct subtrees' leaf lists, laid out in the order the
         // subtrees were built (super cell after super cell), not in the
         // memo's hash order, which changed from build to build: the same
@@ -474,7 +483,7 @@ impl CellStructure {
         };
         cs.stats = cs.compute_stats(tree, culled, distinct, splits, &prim_counts);
         cs.stats.build_seconds = start.elapsed().as_secs_f64();
-        cs
+        Ok(cs)
     }
 
     fn compute_stats(
@@ -1037,14 +1046,15 @@ const PARALLEL_CUT_PRIMS: usize = 4096;
 /// host's cores for large scenes: on two cores, the sphereflake's cuts
 /// (492 super cells listing 13,812 primitives at 512x512) took 5 ms
 /// instead of 9 ms, its whole build 22-26 ms instead of 26-30 ms.
-/// Returns each super cell's cells, in order.
+/// Returns each super cell's cells, in order; fails (`Error::Render`)
+/// only if the OS refuses a thread.
 fn cut_super_cells(
     region: Region,
     leaves: &mut [bsp::Leaf],
     cam_boxes: &[Option<projection::CamBox>],
     whole: &[bool],
     threads: usize,
-) -> Vec<Vec<CutCell>> {
+) -> Result<Vec<Vec<CutCell>>> {
     let cut_one = |leaf: &mut bsp::Leaf| -> Vec<CutCell> {
         // Each primitive's depth extent over this super cell; those whose
         // box does not reach into it at all are dropped.
@@ -1084,38 +1094,58 @@ fn cut_super_cells(
         n => n,
     };
     if threads < 2 {
-        return leaves.iter_mut().map(cut_one).collect();
+        return Ok(leaves.iter_mut().map(cut_one).collect());
     }
     // Chunks handed out in turn, so that a few heavy super cells do not
     // leave one thread with most of the work.
     let chunk = leaves.len().div_ceil(threads * 8).max(1);
     let work = std::sync::Mutex::new(leaves.chunks_mut(chunk).enumerate());
-    let mut done: Vec<(usize, Vec<Vec<CutCell>>)> = std::thread::scope(|s| {
-        let workers: Vec<_> = (0..threads)
-            .map(|_| {
-                s.spawn(|| {
-                    let mut mine = Vec::new();
-                    loop {
-                        // Poisoned only by a panic in `next`, which it has not.
-                        let taken = work.lock().map(|mut w| w.next());
-                        let Ok(Some((i, leaves))) = taken else {
-                            break;
-                        };
-                        mine.push((i, leaves.iter_mut().map(cut_one).collect::<Vec<_>>()));
+    // One thread's share: chunks taken in turn until none is left.
+    let cut_chunks = || {
+        let mut mine = Vec::new();
+        loop {
+            // Poisoned only by a panic in `next`, which it has not.
+            let taken = work.lock().map(|mut w| w.next());
+            let Ok(Some((i, leaves))) = taken else {
+                break;
+            };
+            mine.push((i, leaves.iter_mut().map(cut_one).collect::<Vec<_>>()));
+        }
+        mine
+    };
+    let mut done = std::thread::scope(|s| -> Result<Vec<(usize, Vec<Vec<CutCell>>)>> {
+        let mut workers = Vec::with_capacity(threads);
+        for i in 0..threads {
+            let started = std::thread::Builder::new()
+                .name(format!("hypercast-cut-{i}"))
+                .spawn_scoped(s, cut_chunks);
+            match started {
+                Ok(w) => workers.push(w),
+                Err(e) => {
+                    // A thread the OS refuses fails the build as it fails
+                    // a render (`render::render_pass_with`), rather than
+                    // leave the cuts to fewer threads. No chunk is handed
+                    // out any more: the threads started finish the one
+                    // they hold, and the scope joins them.
+                    if let Ok(mut w) = work.lock() {
+                        w.by_ref().for_each(drop);
                     }
-                    mine
-                })
-            })
-            .collect();
-        workers
+                    return Err(Error::Render(format!(
+                        "cannot start cell build thread {} of {threads}: {e}",
+                        i + 1
+                    )));
+                }
+            }
+        }
+        Ok(workers
             .into_iter()
             .flat_map(|w| w.join().expect("cutting a super cell does not panic"))
-            .collect()
-    });
+            .collect())
+    })?;
     done.sort_unstable_by_key(|d| d.0);
     let cut: Vec<Vec<CutCell>> = done.into_iter().flat_map(|d| d.1).collect();
     assert_eq!(cut.len(), leaves.len(), "every super cell cut once");
-    cut
+    Ok(cut)
 }
 
 /// Depth partitioning of one super cell (section 3.3, figure 5): the

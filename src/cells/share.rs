@@ -412,7 +412,7 @@ mod tests {
             min_super_cells: 32,
             ..Default::default()
         };
-        let cs = CellStructure::build(&scene, 128, 128, options);
+        let cs = CellStructure::build(&scene, 128, 128, options).unwrap();
         let hulls = cs.cell_hulls();
         let (share, _) = cs.restrict_with(&scene, &|_, s| s % 3 == 0, &hulls);
         let mut shared = 0;
@@ -448,7 +448,7 @@ mod tests {
     #[test]
     fn a_share_maps_its_primitives_to_the_whole_scene_and_back() {
         let scene = flake2();
-        let cs = CellStructure::build(&scene, 64, 64, Default::default());
+        let cs = CellStructure::build(&scene, 64, 64, Default::default()).unwrap();
         let n = scene.primitives.len() as u32;
         for g in [0, 1, n - 1] {
             assert_eq!(cs.local_primitive(PrimId(g)), Some(PrimId(g)));

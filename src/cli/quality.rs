@@ -124,7 +124,7 @@ pub fn run(a: QualityArgs) -> Result<()> {
     // Calibrated after the sweep and before the runs it serves, on a host
     // busy with nothing else of ours.
     pb.set_prefix("model");
-    let calibration = calibrate::calibrate();
+    let calibration = calibrate::calibrate()?;
     points.extend(quality::model_runs(
         &scene,
         &reference,

@@ -38,6 +38,7 @@ use super::host::DEFAULT_CAPACITY;
 use super::topology::Topology;
 use super::transport::{Closed, Link, NodeLinks, channels};
 use crate::csg::PrimId;
+use crate::error::{Error, Result};
 use crate::geom::{Ray, Vec3};
 use crate::trace::{RayJob, RayKind};
 
@@ -133,15 +134,24 @@ pub fn host_dimensions(cores: usize) -> Vec<u32> {
         .collect()
 }
 
-/// Measures this host's link costs (about a second).
-pub fn calibrate() -> Calibration {
+/// Measures this host's link costs (about a second). Fails
+/// (`Error::Render`) only if the OS refuses the receiving thread: a
+/// calibration without it would measure nothing.
+pub fn calibrate() -> Result<Calibration> {
     // The host end stays alive: a node whose host link is gone stops.
     let (_host, mut nodes) = channels(1, DEFAULT_CAPACITY);
     let mut receiving = nodes.pop().expect("a 1-cube has two nodes");
     let mut sending = nodes.pop().expect("a 1-cube has two nodes");
     let base = Instant::now();
-    let (sent, received) = std::thread::scope(|s| {
-        let receiver = s.spawn(move || receive_all(&mut receiving, base));
+    let (sent, received) = std::thread::scope(|s| -> Result<_> {
+        let receiver = std::thread::Builder::new()
+            .name("hypercast-calibrate".into())
+            .spawn_scoped(s, move || receive_all(&mut receiving, base))
+            .map_err(|e| {
+                Error::Render(format!(
+                    "cannot start the link calibration's receiving thread: {e}"
+                ))
+            })?;
         let mut sent: Vec<(usize, f64)> = Vec::new();
         for &n in &SIZES {
             let jobs: Vec<RayJob> = (0..n).map(ray_job).collect();
@@ -162,9 +172,9 @@ pub fn calibrate() -> Calibration {
         }
         // An empty message ends the receiver.
         let _ = send(&mut sending, Vec::new());
-        (sent, receiver.join().unwrap_or_default())
-    });
-    fit(samples(&sent, &received))
+        Ok((sent, receiver.join().unwrap_or_default()))
+    })?;
+    Ok(fit(samples(&sent, &received)))
 }
 
 /// Per size, the medians of the measurements after the warm-up ones.
@@ -317,7 +327,7 @@ mod tests {
 
     #[test]
     fn calibration_measures_positive_finite_costs() {
-        let c = calibrate();
+        let c = calibrate().unwrap();
         assert_eq!(c.samples.len(), SIZES.len(), "{c:?}");
         assert!(c.samples.windows(2).all(|w| w[0].bytes < w[1].bytes));
         for v in [c.latency, c.overhead] {

@@ -909,7 +909,8 @@ mod tests {
                 min_super_cells: 16,
                 ..CellOptions::default()
             },
-        );
+        )
+        .unwrap();
         (scene, cells)
     }
 

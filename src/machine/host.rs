@@ -324,10 +324,13 @@ impl Plan {
     /// `check`, the plan whose largest share is smallest, so that the
     /// memory the refusal names is the least that would do. The other
     /// plans are made only where the first does not fit or scatters.
-    pub fn new(scene: &Scene, topo: &Topology, opts: &MachineOptions) -> Plan {
-        let first = Plan::with_subdivision(scene, topo, opts, Subdivision::Balanced);
+    /// Fails (`Error::Render`) only if the OS refuses a thread of the
+    /// build (`CellStructure::build`) or of the mapping's pre-pass
+    /// (`mapping::map`).
+    pub fn new(scene: &Scene, topo: &Topology, opts: &MachineOptions) -> Result<Plan> {
+        let first = Plan::with_subdivision(scene, topo, opts, Subdivision::Balanced)?;
         if topo.dimension == 0 {
-            return first;
+            return Ok(first);
         }
         if first.window > 0 {
             // Rays that cross between nodes at every turn: the super cells
@@ -335,15 +338,15 @@ impl Plan {
             let per_pixel = first.crossings as f64
                 / mapping::prepass_pixels(opts.width, opts.height, 1 << topo.dimension) as f64;
             if per_pixel <= SCATTERED {
-                return first;
+                return Ok(first);
             }
-            let gathered = Plan::with_subdivision(scene, topo, opts, Subdivision::Gathered);
+            let gathered = Plan::with_subdivision(scene, topo, opts, Subdivision::Gathered)?;
             if gathered.window > 0
                 && HOT_CROSSINGS * (gathered.crossings as f64) < first.crossings as f64
             {
-                return gathered;
+                return Ok(gathered);
             }
-            return first;
+            return Ok(first);
         }
         // Without splits, the unsplit plan is this one again.
         let leaner: &[Subdivision] = if first.split_super_cells == 0 {
@@ -353,15 +356,15 @@ impl Plan {
         };
         let mut best = first;
         for &sub in leaner {
-            let plan = Plan::with_subdivision(scene, topo, opts, sub);
+            let plan = Plan::with_subdivision(scene, topo, opts, sub)?;
             if plan.window > 0 {
-                return plan;
+                return Ok(plan);
             }
             if plan.largest_share() < best.largest_share() {
                 best = plan;
             }
         }
-        best
+        Ok(best)
     }
 
     /// The bytes of the largest share.
@@ -369,13 +372,14 @@ impl Plan {
         self.share_bytes.iter().copied().max().unwrap_or(0)
     }
 
-    /// `new` with subdivision `sub`, whether its shares fit or not.
+    /// `new` with subdivision `sub`, whether its shares fit or not; fails
+    /// as `new` does.
     pub fn with_subdivision(
         scene: &Scene,
         topo: &Topology,
         opts: &MachineOptions,
         sub: Subdivision,
-    ) -> Plan {
+    ) -> Result<Plan> {
         let d = topo.dimension;
         let n = 1usize << d;
         let cell_opts = CellOptions {
@@ -388,7 +392,7 @@ impl Plan {
             ..opts.cells
         };
         let (w, h) = (opts.width, opts.height);
-        let mut cells = CellStructure::build(scene, w, h, cell_opts);
+        let mut cells = CellStructure::build(scene, w, h, cell_opts)?;
         let t_pre = Instant::now();
         // A super cell is never split over nodes: where the mapping's
         // estimate finds one much heavier than a node's share, the build
@@ -399,7 +403,7 @@ impl Plan {
         let cam = crate::trace::CameraFrame::new(scene, w, h);
         let pixel_area = (2.0 * cam.half_w / f64::from(w)) * (2.0 * cam.half_h / f64::from(h));
         let mut round = 0;
-        let (mut work, mut owner, as_built) = mapping::map(&cells, scene, w, h, opts.mapping, d);
+        let (mut work, mut owner, as_built) = mapping::map(&cells, scene, w, h, opts.mapping, d)?;
         let mut crossings = as_built;
         while opts.mapping == Mapping::Balanced
             && sub == Subdivision::Balanced
@@ -419,8 +423,8 @@ impl Plan {
                 h,
                 cell_opts,
                 &[&next_hot[0], &next_hot[1]],
-            );
-            let (next_work, next_owner, moves) = mapping::map(&next, scene, w, h, opts.mapping, d);
+            )?;
+            let (next_work, next_owner, moves) = mapping::map(&next, scene, w, h, opts.mapping, d)?;
             // Splits trade messages for balance; past this, they cost more
             // than they even out (`HOT_CROSSINGS`).
             if moves as f64 > HOT_CROSSINGS * as_built as f64 {
@@ -457,7 +461,7 @@ impl Plan {
         // record is far smaller than a path's bound).
         let room = topo.node_memory.saturating_sub(most);
         let window = (room / ((n as u64 + 1) * path_bytes)).min(MAX_WINDOW as u64) as u32;
-        Plan {
+        Ok(Plan {
             replicated_bytes: node::share_bytes(&cells, scene),
             cells,
             work,
@@ -471,7 +475,7 @@ impl Plan {
             rebuilds: round,
             subdivision: sub,
             crossings,
-        }
+        })
     }
 
     /// Finished records that no credit covers and that may wait on their
@@ -603,7 +607,7 @@ pub fn render_adaptive(
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<(Film, MachineStats, CellStructure, AaSummary)> {
     let start = Instant::now();
-    let plan = Plan::new(scene, topo, opts);
+    let plan = Plan::new(scene, topo, opts)?;
     plan.check(scene, topo)?;
     let sampling = Sampling {
         spp: opts.spp.max(1),

@@ -23,6 +23,7 @@
 //!   the image, so that every node owns as many pixels.
 
 use crate::cells::{CellStructure, CellTracer, Hot, Rect, Region};
+use crate::error::{Error, Result};
 use crate::machine::routing::gray;
 use crate::render::pixel_jobs;
 use crate::scene::Scene;
@@ -91,13 +92,18 @@ fn sampled(n: u32, stride: u32) -> std::iter::StepBy<std::ops::Range<u32>> {
     ((stride / 2).min(n - 1)..n).step_by(stride as usize)
 }
 
+/// What `map` gives: the work per super cell and region, the owner of
+/// every super cell, and the crossings between nodes.
+pub type Mapped = ([Vec<f64>; 2], [Vec<u16>; 2], u64);
+
 /// The estimated work of every super cell, per region, the owner of
 /// every super cell for `2^d` nodes (`assign`; for `Balanced` on more
 /// than one node, the grid cut again by pre-passes walked under the
 /// mapping, `RECUTS`, then `refine`), and how
 /// many times the rays of the last pre-pass walked under the mapping
 /// moved between nodes (0 where none was walked so: one node, or
-/// `EqualArea`): the estimate of the paths the machine will send.
+/// `EqualArea`): the estimate of the paths the machine will send. Fails
+/// (`Error::Render`) only if the OS refuses a pre-pass thread.
 pub fn map(
     cs: &CellStructure,
     scene: &Scene,
@@ -105,7 +111,7 @@ pub fn map(
     height: u32,
     mapping: Mapping,
     d: u32,
-) -> ([Vec<f64>; 2], [Vec<u16>; 2], u64) {
+) -> Result<Mapped> {
     // Which super cells touch, once for every mapping made here.
     let beside = neighbours(cs);
     match mapping {
@@ -127,14 +133,14 @@ pub fn map(
                     .collect()
             });
             let owner = assign(cs, &beside, &work, d);
-            (work, owner, 0)
+            Ok((work, owner, 0))
         }
         Mapping::Balanced => {
             let stride = prepass_stride(width, height, 1 << d);
-            let (first, _) = prepass(cs, scene, width, height, None, stride);
+            let (first, _) = prepass(cs, scene, width, height, None, stride)?;
             if d == 0 {
                 let owner = assign(cs, &beside, &first, d);
-                return (first, owner, 0);
+                return Ok((first, owner, 0));
             }
             // Every cell's hull, once for the walks below.
             let skeleton = skeleton(cs, scene);
@@ -148,7 +154,7 @@ pub fn map(
             let walk = |owner: &[Vec<u16>; 2]| {
                 prepass(cs, scene, width, height, Some((owner, &skeleton)), stride)
             };
-            let (mut work, mut moves) = walk(&owner);
+            let (mut work, mut moves) = walk(&owner)?;
             let mut sum = first;
             for round in 1..=RECUTS {
                 if predicted_imbalance(&work, &owner, d) <= EVEN {
@@ -163,10 +169,10 @@ pub fn map(
                     .clone()
                     .map(|v| v.into_iter().map(|x| x / (round + 1) as f64).collect());
                 owner = grid(cs, &mean, d);
-                (work, moves) = walk(&owner);
+                (work, moves) = walk(&owner)?;
             }
             refine(&beside, &work, &mut owner, d);
-            (work, owner, moves)
+            Ok((work, owner, moves))
         }
     }
 }
@@ -265,7 +271,8 @@ fn clamped(r: &Rect, (lo, hi): ([f64; 2], [f64; 2])) -> [Option<(f64, f64)>; 2] 
 /// per-node loads did not correlate with the nodes' (-0.1).
 ///
 /// Also returned: the times its rays moved between nodes (walking under a
-/// mapping; 0 without one).
+/// mapping; 0 without one). Fails (`Error::Render`) only if the OS
+/// refuses a thread.
 fn prepass(
     cs: &CellStructure,
     scene: &Scene,
@@ -273,75 +280,83 @@ fn prepass(
     height: u32,
     walk: Option<(&[Vec<u16>; 2], &CellStructure)>,
     stride: u32,
-) -> ([Vec<f64>; 2], u64) {
+) -> Result<([Vec<f64>; 2], u64)> {
     let cam = CameraFrame::new(scene, width, height);
     // On the host's cores, before any node starts, rows shared out in
     // turn. Each pixel's work is counted by its own rays alone (mailboxes
     // are keyed by ray), so the sums are the same for any thread count.
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
     let rows: Vec<u32> = sampled(height, stride).collect();
-    let parts: Vec<([Vec<u64>; 2], u64)> = std::thread::scope(|scope| {
-        let handles: Vec<_> = (0..threads.min(rows.len()).max(1))
-            .map(|t| {
-                let (rows, cam) = (&rows, &cam);
-                scope.spawn(move || {
-                    let shader = Shader::new(scene);
-                    let mut tracer = CellTracer::new(cs, scene);
-                    match walk {
-                        Some((owner, skeleton)) => tracer.record_work_for(owner.clone(), skeleton),
-                        None => tracer.record_work(),
-                    }
-                    let (mut counts, mut stack, mut jobs) =
-                        (RayCounts::default(), Vec::new(), Vec::new());
-                    for &j in rows.iter().skip(t).step_by(threads) {
-                        // What the paths deliver is dropped: a row's band
-                        // takes it (a path's rays all carry its pixel). A
-                        // whole film per thread and pass was a clearing of
-                        // 24 MiB each at 1024x1024, half the pre-pass's
-                        // time at d = 1.
-                        let mut film = Film::band(width, j, 1);
-                        for i in sampled(width, stride) {
-                            jobs.clear();
-                            pixel_jobs(cam, i, j, 1, &mut jobs);
-                            for job in jobs.drain(..) {
-                                shader.run_path(
-                                    &mut tracer,
-                                    job,
-                                    &mut film,
-                                    &mut counts,
-                                    &mut stack,
-                                );
-                            }
-                        }
-                    }
-                    let work = tracer
-                        .recorded_work()
-                        .expect("record_work or record_work_for was called above")
-                        .clone();
-                    (work, tracer.recorded_moves())
-                })
-            })
-            .collect();
-        handles
+    // One thread's share: every `threads`-th sampled row from its `t`-th.
+    let trace_rows = |t: usize| {
+        let shader = Shader::new(scene);
+        let mut tracer = CellTracer::new(cs, scene);
+        match walk {
+            Some((owner, skeleton)) => tracer.record_work_for(owner.clone(), skeleton),
+            None => tracer.record_work(),
+        }
+        let (mut counts, mut stack, mut jobs) = (RayCounts::default(), Vec::new(), Vec::new());
+        for &j in rows.iter().skip(t).step_by(threads) {
+            // What the paths deliver is dropped: a row's band takes it (a
+            // path's rays all carry its pixel). A whole film per thread
+            // and pass was a clearing of 24 MiB each at 1024x1024, half
+            // the pre-pass's time at d = 1.
+            let mut film = Film::band(width, j, 1);
+            for i in sampled(width, stride) {
+                jobs.clear();
+                pixel_jobs(&cam, i, j, 1, &mut jobs);
+                for job in jobs.drain(..) {
+                    shader.run_path(&mut tracer, job, &mut film, &mut counts, &mut stack);
+                }
+            }
+        }
+        let work = tracer
+            .recorded_work()
+            .expect("record_work or record_work_for was called above")
+            .clone();
+        (work, tracer.recorded_moves())
+    };
+    let started = threads.min(rows.len()).max(1);
+    let parts = std::thread::scope(|scope| -> Result<Vec<([Vec<u64>; 2], u64)>> {
+        let mut handles = Vec::with_capacity(started);
+        for t in 0..started {
+            let trace_rows = &trace_rows;
+            // A thread the OS refuses (too many threads, no memory for a
+            // stack) fails the plan as it fails a render, rather than
+            // leave its rows to fewer threads (`render::render_pass_with`
+            // says why). The threads started trace their rows, a sampled
+            // fraction of the image, and the scope joins them.
+            let handle = std::thread::Builder::new()
+                .name(format!("hypercast-prepass-{t}"))
+                .spawn_scoped(scope, move || trace_rows(t))
+                .map_err(|e| {
+                    Error::Render(format!(
+                        "cannot start pre-pass thread {} of {started}: {e}",
+                        t + 1
+                    ))
+                })?;
+            handles.push(handle);
+        }
+        Ok(handles
             .into_iter()
             .map(|h| {
                 h.join()
                     .expect("a pre-pass thread panicked (a bug, not bad input)")
             })
-            .collect()
-    });
+            .collect())
+    })?;
     let work = [0, 1].map(|r| {
         (0..parts[0].0[r].len())
             .map(|s| parts.iter().map(|p| p.0[r][s]).sum::<u64>() as f64)
             .collect()
     });
-    (work, parts.iter().map(|p| p.1).sum())
+    Ok((work, parts.iter().map(|p| p.1).sum()))
 }
 
 /// Each node's work under `owner` as the pre-pass predicts it, from every
 /// `stride`-th pixel of every `stride`-th row (1: every pixel), in the
 /// units of `CellTracer::record_work`: cells entered and
-/// `cells::TEST_WORK` per intersection test.
+/// `cells::TEST_WORK` per intersection test. Fails as `map` does.
 pub fn predicted_loads(
     cs: &CellStructure,
     scene: &Scene,
@@ -350,7 +365,7 @@ pub fn predicted_loads(
     owner: &[Vec<u16>; 2],
     d: u32,
     stride: u32,
-) -> Vec<f64> {
+) -> Result<Vec<f64>> {
     let skeleton = skeleton(cs, scene);
     let (work, _) = prepass(
         cs,
@@ -359,8 +374,8 @@ pub fn predicted_loads(
         height,
         Some((owner, &skeleton)),
         stride.max(1),
-    );
-    loads(&work, owner, d)
+    )?;
+    Ok(loads(&work, owner, d))
 }
 
 /// The structure as a node that owns nothing holds it: every cell with
@@ -644,7 +659,7 @@ mod tests {
             min_super_cells,
             ..CellOptions::default()
         };
-        (CellStructure::build(&scene, 64, 64, opts), scene)
+        (CellStructure::build(&scene, 64, 64, opts).unwrap(), scene)
     }
 
     /// Whether two rectangles share a piece of an edge.

@@ -212,7 +212,7 @@ pub fn measure(
             min_super_cells: 0,
             ..opts.cells
         };
-        let cs = crate::cells::CellStructure::build(scene, opts.width, opts.height, one_node);
+        let cs = crate::cells::CellStructure::build(scene, opts.width, opts.height, one_node)?;
         cs.restrict(scene, &|_, _| true).0.bytes() as u64
     };
     let mut check = |film: &Film, d: u32| -> Result<()> {

@@ -53,7 +53,8 @@ pub(crate) fn structures(scene: &Scene, width: u32, height: u32) -> Vec<CellStru
                     choice,
                     ..Default::default()
                 },
-            );
+            )
+            .unwrap();
             assert_cell_bounds_not_nan(&cs);
             cs
         })
@@ -343,7 +344,8 @@ fn differences(scene: &Scene, opts: &RenderOptions, choice: SegmentChoice) -> St
             choice,
             ..Default::default()
         },
-    );
+    )
+    .unwrap();
     let mut out = String::new();
     let cam = CameraFrame::new(scene, opts.width, opts.height);
     let mut roth = RothTracer::new(scene);
@@ -564,7 +566,7 @@ fn shadow_walks_stop_short_of_the_light_only_where_nothing_is() {
             Box(min: (2.5, 2.5, 0.1), max: (3.5, 3.5, 1.0)),
           ])",
     );
-    let cs = CellStructure::build(&scene, 64, 48, CellOptions::default());
+    let cs = CellStructure::build(&scene, 64, 48, CellOptions::default()).unwrap();
     let r = &cs.shadows.free_radius;
     assert!(r[0] > 0.0099 && r[0] < 0.01, "{r:?}");
     assert_eq!(r[1], 0.0, "the second light is inside a box");
@@ -728,7 +730,8 @@ fn random_rays_in_random_scenes_hit_what_roth_hits() {
                 choice,
                 ..Default::default()
             },
-        );
+        )
+        .unwrap();
         assert_cell_bounds_not_nan(&cs);
         let mut roth = RothTracer::new(&scene);
         let mut tracer = CellTracer::new(&cs, &scene);
@@ -1454,7 +1457,7 @@ fn forced_super_cells_are_there_and_change_no_pixel() {
     let scene = hypercast::scene::load_scene(&crate::util::repo("scenes/jagged_ball.ron")).unwrap();
     let opts = options(96, 72);
     let (roth, _) = render_roth(&scene, &opts, &|_| {});
-    let plain = CellStructure::build(&scene, 96, 72, CellOptions::default());
+    let plain = CellStructure::build(&scene, 96, 72, CellOptions::default()).unwrap();
     let want = 4 * plain.region(Region::Front).supers.len();
     let forced = CellOptions {
         min_super_cells: want,
@@ -1481,7 +1484,7 @@ fn lights_outside_the_solid_are_told_apart_from_lights_inside_or_on_it() {
             Sphere(center: (5, 5, 5), radius: 0.5, material: \"glass\"),
           ])",
     );
-    let cs = CellStructure::build(&scene, 32, 24, CellOptions::default());
+    let cs = CellStructure::build(&scene, 32, 24, CellOptions::default()).unwrap();
     let f = &cs.shadows;
     assert_eq!(f.clear_lights, [true, false, true, false, false]);
     assert_eq!(f.glass.as_ref().map(Vec::len), Some(1));
@@ -1503,7 +1506,7 @@ fn the_structure_is_the_same_for_any_number_of_build_threads() {
             min_super_cells: 24,
             ..CellOptions::default()
         };
-        let mut cs = CellStructure::build(&scene, 96, 80, opts);
+        let mut cs = CellStructure::build(&scene, 96, 80, opts).unwrap();
         cs.stats.build_seconds = 0.0;
         serde_json::to_string(&cs).unwrap()
     };

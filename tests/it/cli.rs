@@ -284,44 +284,74 @@ fn inputs_that_are_not_regular_files_or_too_large_are_refused_at_once() {
     assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
 
-/// Audit: a render thread the OS refused to start was a panic
-/// (`std::thread::Scope::spawn`). It is a failed render now: exit 1, one
-/// line naming the thread, no image. The OS refuses for real here: every
-/// thread started without a stack size of its own (the render's; the
-/// scene loader and the machine's nodes set theirs) asks for a stack
-/// larger than any address space (`RUST_MIN_STACK`, 2^62 bytes).
+/// Audit: a thread the OS refused to start was a panic
+/// (`std::thread::Scope::spawn`): the render threads of `--accel roth`,
+/// then the mapping's pre-pass, which the default render (cells on the
+/// modelled machine), `inspect` and `scale` all run, and the build's
+/// depth cuts on a large scene (`cells::PARALLEL_CUT_PRIMS`; on a host
+/// of two cores or more, else the pre-pass is refused). It is a failed
+/// run now: exit 1, one line naming the thread, no image, statistics or
+/// folder, nothing on stdout. The OS refuses for real here: every thread
+/// started without a stack size of its own (the scene loader and the
+/// machine's nodes set theirs) asks for a stack larger than any address
+/// space (`RUST_MIN_STACK`, 2^62 bytes).
 #[test]
-fn a_render_thread_the_os_refuses_is_a_failed_render_not_a_panic() {
-    let tmp = tempfile::tempdir().unwrap();
+fn a_thread_the_os_refuses_is_a_failed_run_not_a_panic() {
     let sphere = util::repo("scenes/small/sphere.ron");
-    let args = [
-        "render",
-        path_str(&sphere),
-        "-o",
-        "out.png",
-        "--accel",
-        "roth",
-        "--threads",
-        "2",
-        "--width",
-        "40",
-        "--height",
-        "30",
+    let sphere = path_str(&sphere);
+    let flake = util::repo("scenes/sphereflake4.nff");
+    let flake = path_str(&flake);
+    let cut = match std::thread::available_parallelism().map_or(1, |n| n.get()) {
+        1 => "hypercast: error: cannot start pre-pass thread 1 of 1: ",
+        _ => "hypercast: error: cannot start cell build thread 1 of ",
+    };
+    let size = ["--width", "40", "--height", "30"];
+    let cases: [(&[&str], &str); 5] = [
+        (
+            &[
+                "render",
+                sphere,
+                "-o",
+                "out.png",
+                "--accel",
+                "roth",
+                "--threads",
+                "2",
+            ],
+            "hypercast: error: cannot start render thread 1 of 2: ",
+        ),
+        (
+            &["render", sphere, "-o", "out.png"],
+            "hypercast: error: cannot start pre-pass thread 1 of ",
+        ),
+        (
+            &["inspect", sphere, "--stats", "stats.json"],
+            "hypercast: error: cannot start pre-pass thread 1 of ",
+        ),
+        (
+            &["scale", sphere, "--dims", "0..1", "--out", "out"],
+            "hypercast: error: at d = 0: cannot start pre-pass thread 1 of ",
+        ),
+        (&["render", flake, "-o", "out.png"], cut),
     ];
-    let o = Command::new(BIN)
-        .args(args)
-        .current_dir(tmp.path())
-        .env("RUST_BACKTRACE", "1")
-        .env("RUST_MIN_STACK", (1u64 << 62).to_string())
-        .output()
-        .expect("the binary runs");
-    let problems = check_failure(
-        tmp.path(),
-        &args,
-        &o,
-        1,
-        "hypercast: error: cannot start render thread 1 of 2: ",
-    );
+    let mut problems = Vec::new();
+    for (args, want) in cases {
+        let tmp = tempfile::tempdir().unwrap();
+        let args = [args, &size[..]].concat();
+        let o = Command::new(BIN)
+            .args(&args)
+            .current_dir(tmp.path())
+            .env("RUST_BACKTRACE", "1")
+            .env("RUST_MIN_STACK", (1u64 << 62).to_string())
+            .output()
+            .expect("the binary runs");
+        problems.extend(check_failure(tmp.path(), &args, &o, 1, want));
+        // Nor half a report: `inspect` and `scale` print theirs only
+        // once the plan is made.
+        if !o.stdout.is_empty() {
+            problems.push(format!("hypercast {}: printed on stdout", args.join(" ")));
+        }
+    }
     assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
 

@@ -160,8 +160,9 @@ fn pre_pass_error(no_shadow_cache: bool) -> f64 {
     let (w, h, d) = (96, 96, 3);
     let mut o = MachineOptions::new(w, h, 1);
     o.cells.no_shadow_cache = no_shadow_cache;
-    let plan = Plan::new(&scene, &topo(d), &o);
-    let predicted = machine::mapping::predicted_loads(&plan.cells, &scene, w, h, &plan.owner, d, 1);
+    let plan = Plan::new(&scene, &topo(d), &o).unwrap();
+    let predicted =
+        machine::mapping::predicted_loads(&plan.cells, &scene, w, h, &plan.owner, d, 1).unwrap();
     let (_, stats, _) = machine::render(&scene, &topo(d), &o, &|_| {}).unwrap();
     assert_eq!(stats.per_node.len(), 1 << d);
     stats
@@ -184,7 +185,7 @@ fn heavy_super_cells_are_split_for_the_balance() {
     let scene = load_scene(&repo("scenes/house.ron")).unwrap();
     let (w, h, d) = (256, 192, 5);
     let o = MachineOptions::new(w, h, 1);
-    let plan = Plan::new(&scene, &topo(d), &o);
+    let plan = Plan::new(&scene, &topo(d), &o).unwrap();
     assert!(plan.split_super_cells > 0 && plan.rebuilds > 0);
     let plain = CellStructure::build(
         &scene,
@@ -194,8 +195,10 @@ fn heavy_super_cells_are_split_for_the_balance() {
             min_super_cells: SUPER_CELLS_PER_NODE << d,
             ..CellOptions::default()
         },
-    );
-    let (work, _, _) = machine::mapping::map(&plain, &scene, w, h, machine::Mapping::Balanced, d);
+    )
+    .unwrap();
+    let (work, _, _) =
+        machine::mapping::map(&plain, &scene, w, h, machine::Mapping::Balanced, d).unwrap();
     let heaviest = |work: &[Vec<f64>; 2]| {
         let total: f64 = work.iter().flatten().sum();
         work.iter().flatten().cloned().fold(0.0, f64::max) / total
@@ -219,7 +222,7 @@ fn the_balanced_mapping_evens_the_predicted_load() {
     use hypercast::machine::host::Plan;
     let scene = load_scene(&repo("scenes/csg_basics.ron")).unwrap();
     let o = MachineOptions::new(320, 240, 1);
-    let plan = Plan::new(&scene, &topo(5), &o);
+    let plan = Plan::new(&scene, &topo(5), &o).unwrap();
     let imbalance = machine::mapping::predicted_imbalance(&plan.work, &plan.owner, 5);
     assert!(imbalance < 1.25, "predicted imbalance {imbalance}");
 }
@@ -241,7 +244,7 @@ fn splits_that_multiply_the_crossings_are_not_made() {
     let scene = load_scene(&path).unwrap();
     let (w, h, d) = (80, 60, 5);
     let o = MachineOptions::new(w, h, 1);
-    let plan = Plan::with_subdivision(&scene, &topo(d), &o, Subdivision::Balanced);
+    let plan = Plan::with_subdivision(&scene, &topo(d), &o, Subdivision::Balanced).unwrap();
     assert_eq!(plan.split_super_cells, 0);
     let cam = CameraFrame::new(&scene, w, h);
     let pixel_area = (2.0 * cam.half_w / f64::from(w)) * (2.0 * cam.half_h / f64::from(h));
@@ -253,7 +256,7 @@ fn splits_that_multiply_the_crossings_are_not_made() {
     // Its rays cross between nodes at every turn even unsplit, so the
     // plan gathers them on the cost model's super cells: the single
     // node's image without a hop.
-    let chosen = Plan::new(&scene, &topo(d), &o);
+    let chosen = Plan::new(&scene, &topo(d), &o).unwrap();
     assert_eq!(chosen.subdivision, Subdivision::Gathered);
     assert!(chosen.crossings * 2 < plan.crossings);
     let (film, stats, _) = machine::render(&scene, &topo(d), &o, &|_| {}).unwrap();
@@ -263,7 +266,7 @@ fn splits_that_multiply_the_crossings_are_not_made() {
     assert_eq!(differing(&film, &alone), 0);
     // A scene whose rays mostly stay keeps the super cells for balance.
     let house = load_scene(&repo("scenes/house.ron")).unwrap();
-    let plan = Plan::new(&house, &topo(d), &MachineOptions::new(128, 96, 1));
+    let plan = Plan::new(&house, &topo(d), &MachineOptions::new(128, 96, 1)).unwrap();
     assert_eq!(plan.subdivision, Subdivision::Balanced);
 }
 
@@ -282,7 +285,7 @@ fn a_plan_too_large_for_balance_falls_back_to_a_leaner_one() {
         .with_overrides(Some(d), Some(1 << 30))
         .unwrap();
     let need = |sub| {
-        let p = Plan::with_subdivision(&scene, &roomy, &o, sub);
+        let p = Plan::with_subdivision(&scene, &roomy, &o, sub).unwrap();
         p.largest_share() + ((1u64 << d) + 1) * p.path_bytes
     };
     let (balanced, unsplit) = (need(Subdivision::Balanced), need(Subdivision::Unsplit));
@@ -293,7 +296,7 @@ fn a_plan_too_large_for_balance_falls_back_to_a_leaner_one() {
     let tight = Topology::ipsc_d5()
         .with_overrides(Some(d), Some((unsplit + balanced) / 2))
         .unwrap();
-    let plan = Plan::new(&scene, &tight, &o);
+    let plan = Plan::new(&scene, &tight, &o).unwrap();
     assert_ne!(plan.subdivision, Subdivision::Balanced);
     assert!(plan.window > 0);
     let (film, stats, _) = machine::render(&scene, &tight, &o, &|_| {}).expect("fits, leaner");
