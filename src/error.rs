@@ -131,3 +131,22 @@ impl Error {
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// Starts worker `i` of `n` (`what`, e.g. "render thread") in `scope`,
+/// named `hypercast-{tag}-{i}`. A thread the OS refuses (too many threads,
+/// no memory for a stack) is `Error::Render` naming it, not the panic of
+/// `Scope::spawn`: the run fails rather than go on with fewer threads
+/// than asked for, as a slower run that says nothing would mislead the
+/// timings the experiments take. The caller stops the workers already
+/// started from taking more work; the scope joins them.
+pub fn start_worker<'scope, T: Send + 'scope>(
+    scope: &'scope std::thread::Scope<'scope, '_>,
+    (tag, what): (&str, &str),
+    (i, n): (usize, usize),
+    work: impl FnOnce() -> T + Send + 'scope,
+) -> Result<std::thread::ScopedJoinHandle<'scope, T>> {
+    std::thread::Builder::new()
+        .name(format!("hypercast-{tag}-{i}"))
+        .spawn_scoped(scope, work)
+        .map_err(|e| Error::Render(format!("cannot start {what} {} of {n}: {e}", i + 1)))
+}

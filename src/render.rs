@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Instant;
 
 use crate::cells::{CellOptions, CellStructure, CellTracer};
-use crate::error::{Error, Result};
+use crate::error::{Error, Result, start_worker};
 use crate::reference::RothTracer;
 use crate::scene::Scene;
 use crate::trace::{CameraFrame, Film, RayCounts, RayJob, Shader, Tracer};
@@ -280,20 +280,14 @@ where
     let results = std::thread::scope(|s| -> Result<Vec<(RenderStats, TraceCounters)>> {
         let mut handles = Vec::with_capacity(threads);
         for i in 0..threads {
-            let started = std::thread::Builder::new()
-                .name(format!("hypercast-render-{i}"))
-                .spawn_scoped(s, work);
-            match started {
+            match start_worker(s, ("render", "render thread"), (i, threads), work) {
                 Ok(h) => handles.push(h),
                 Err(e) => {
                     // No band is handed out any more: the threads
                     // started finish the one they hold, and the scope
                     // joins them.
                     next_band.store(bands, Ordering::Relaxed);
-                    return Err(Error::Render(format!(
-                        "cannot start render thread {} of {threads}: {e}",
-                        i + 1
-                    )));
+                    return Err(e);
                 }
             }
         }

@@ -15,7 +15,7 @@ use std::collections::HashMap;
 use std::time::Instant;
 
 use crate::csg::{CsgNode, CsgTree, NodeId, Op, PrimId, Primitive};
-use crate::error::{Error, Result};
+use crate::error::{Result, start_worker};
 use crate::geom::{Aabb, Vec3};
 use crate::scene::Scene;
 use crate::trace::CameraFrame;
@@ -1116,24 +1116,18 @@ fn cut_super_cells(
     let mut done = std::thread::scope(|s| -> Result<Vec<(usize, Vec<Vec<CutCell>>)>> {
         let mut workers = Vec::with_capacity(threads);
         for i in 0..threads {
-            let started = std::thread::Builder::new()
-                .name(format!("hypercast-cut-{i}"))
-                .spawn_scoped(s, cut_chunks);
+            let started = start_worker(s, ("cut", "cell build thread"), (i, threads), cut_chunks);
             match started {
                 Ok(w) => workers.push(w),
                 Err(e) => {
-                    // A thread the OS refuses fails the build as it fails
-                    // a render (`render::render_pass_with`), rather than
-                    // leave the cuts to fewer threads. No chunk is handed
-                    // out any more: the threads started finish the one
-                    // they hold, and the scope joins them.
+                    // As a render fails (`render::render_pass_with`),
+                    // rather than leave the cuts to fewer threads. No
+                    // chunk is handed out any more: the threads started
+                    // finish the one they hold, and the scope joins them.
                     if let Ok(mut w) = work.lock() {
                         w.by_ref().for_each(drop);
                     }
-                    return Err(Error::Render(format!(
-                        "cannot start cell build thread {} of {threads}: {e}",
-                        i + 1
-                    )));
+                    return Err(e);
                 }
             }
         }

@@ -23,7 +23,7 @@
 //!   the image, so that every node owns as many pixels.
 
 use crate::cells::{CellStructure, CellTracer, Hot, Rect, Region};
-use crate::error::{Error, Result};
+use crate::error::{Result, start_worker};
 use crate::machine::routing::gray;
 use crate::render::pixel_jobs;
 use crate::scene::Scene;
@@ -326,15 +326,12 @@ fn prepass(
             // leave its rows to fewer threads (`render::render_pass_with`
             // says why). The threads started trace their rows, a sampled
             // fraction of the image, and the scope joins them.
-            let handle = std::thread::Builder::new()
-                .name(format!("hypercast-prepass-{t}"))
-                .spawn_scoped(scope, move || trace_rows(t))
-                .map_err(|e| {
-                    Error::Render(format!(
-                        "cannot start pre-pass thread {} of {started}: {e}",
-                        t + 1
-                    ))
-                })?;
+            let handle = start_worker(
+                scope,
+                ("prepass", "pre-pass thread"),
+                (t, started),
+                move || trace_rows(t),
+            )?;
             handles.push(handle);
         }
         Ok(handles
