@@ -314,8 +314,13 @@ impl CellStructure {
         // Algorithm 1: minimal boxes, per node.
         let minimal = tree.minimal_boxes();
         let mut prim_box = vec![Aabb::EMPTY; scene.primitives.len()];
+        // Each primitive's minimal box as Algorithm 1 gives it, before the
+        // padding below: where the eye lies within that padding of its
+        // boundary, no side of it can be told (`whole`).
+        let mut core_box = vec![Aabb::EMPTY; scene.primitives.len()];
         for (i, n) in tree.nodes.iter().enumerate() {
             if let CsgNode::Leaf(p) = n {
+                core_box[p.index()] = minimal[i];
                 prim_box[p.index()] = minimal[i].inflated_each(1e-12);
             }
         }
@@ -345,14 +350,33 @@ impl CellStructure {
         let mut splits = 0;
         // Primitives per cell, for the statistics only.
         let mut prim_counts = Vec::new();
-        // A box with the eye at its boundary, to rounding, is in every
-        // super cell over its whole depth, in both regions
-        // (`View::eye_at_boundary`): its corners give the depth, unclipped.
-        let whole: Vec<bool> = prim_box.iter().map(|b| view.eye_at_boundary(b)).collect();
+        // A box with the eye at its boundary, to rounding and padding, is
+        // in every super cell over its whole depth, in both regions
+        // (`View::eye_near_boundary`): its corners give the depth,
+        // unclipped. (With the padding left out of the band, a box whose
+        // face held the eye exactly, which the padding then put just
+        // inside, was clipped to the directions from the eye into it: a
+        // ray that left the box through the eye, its exit at the very
+        // start of the region after the eye plane, found that cell
+        // without the box, and missed the exit Roth found.)
+        let whole: Vec<bool> = prim_box
+            .iter()
+            .zip(&core_box)
+            .map(|(b, core)| view.eye_near_boundary(b, core))
+            .collect();
         let mut region_cells = |region: Region| -> Result<RegionCells> {
             let projected: Vec<Option<(Rect, f64, f64)>> = prim_box
                 .iter()
-                .map(|b| view.project_box(b, region))
+                .zip(&whole)
+                .map(|(b, &whole)| {
+                    if whole && !b.is_empty() {
+                        // As `project_box` takes a box at the eye.
+                        let (z0, z1) = View::depth_range_whole(&view.cam_box(b), region);
+                        Some((Rect::PLANE, z0, z1))
+                    } else {
+                        view.project_box(b, region)
+                    }
+                })
                 .collect();
             let rects: Vec<Option<Rect>> = projected.iter().map(|p| p.map(|(r, _, _)| r)).collect();
             // The front region's screen window: where primary rays go.

@@ -247,6 +247,14 @@ impl View {
     /// box is taken to cover the whole screen, over its whole depth in
     /// each region (`project_box`, `depth_range_whole`).
     pub fn eye_at_boundary(&self, b: &Aabb) -> bool {
+        self.eye_near_boundary(b, b)
+    }
+
+    /// `eye_at_boundary` for a box `b` padded around a `core` inside it:
+    /// whether the eye lies in the band from within rounding outside `b`
+    /// to within rounding inside `core`, where neither box's coordinates
+    /// tell on which side of the boundary it is.
+    pub fn eye_near_boundary(&self, b: &Aabb, core: &Aabb) -> bool {
         if b.is_empty() {
             return false;
         }
@@ -255,9 +263,9 @@ impl View {
             .max((b.max - self.eye).abs())
             .max_element();
         let e = reach * CLIP_ROUNDING;
-        let (grown, shrunk) = ((b.min - e, b.max + e), (b.min + e, b.max - e));
         let inside = |(lo, hi): (Vec3, Vec3)| lo.cmple(self.eye).all() && self.eye.cmple(hi).all();
-        inside(grown) && !inside(shrunk)
+        let deep = !core.is_empty() && inside((core.min + e, core.max - e));
+        inside((b.min - e, b.max + e)) && !deep
     }
 
     /// The depth interval of a box (`corners`) in `region`, the eye plane
