@@ -367,16 +367,8 @@ impl CellStructure {
         let mut region_cells = |region: Region| -> Result<RegionCells> {
             let projected: Vec<Option<(Rect, f64, f64)>> = prim_box
                 .iter()
-                .zip(&whole)
-                .map(|(b, &whole)| {
-                    if whole && !b.is_empty() {
-                        // As `project_box` takes a box at the eye.
-                        let (z0, z1) = View::depth_range_whole(&view.cam_box(b), region);
-                        Some((Rect::PLANE, z0, z1))
-                    } else {
-                        view.project_box(b, region)
-                    }
-                })
+                .zip(&core_box)
+                .map(|(b, core)| view.project_box(b, core, region))
                 .collect();
             let rects: Vec<Option<Rect>> = projected.iter().map(|p| p.map(|(r, _, _)| r)).collect();
             // The front region's screen window: where primary rays go.

@@ -125,13 +125,16 @@ impl View {
     /// None when the box misses the region. The box is clipped by the eye
     /// plane before projecting (clip before dividing by w): the projection
     /// of a convex polytope is bounded by its vertices' projections, and a
-    /// vertex on the eye plane stands for screen points at infinity.
-    pub fn project_box(&self, b: &Aabb, region: Region) -> Option<(Rect, f64, f64)> {
+    /// vertex on the eye plane stands for screen points at infinity. A box
+    /// with the eye at its boundary, to rounding and to the padding of `b`
+    /// around `core` (the box it was grown from, or `b` itself), covers the
+    /// whole plane over its whole depth (`eye_near_boundary`).
+    pub fn project_box(&self, b: &Aabb, core: &Aabb, region: Region) -> Option<(Rect, f64, f64)> {
         if b.is_empty() {
             return None;
         }
         let corners = b.corners().map(|c| self.point(c));
-        if self.eye_at_boundary(b) {
+        if self.eye_near_boundary(b, core) {
             let (z0, z1) = View::depth_range_whole(&corners, region);
             return Some((Rect::PLANE, z0, z1));
         }
@@ -238,22 +241,15 @@ impl View {
         b.corners().map(|c| self.point(c))
     }
 
-    /// Whether the eye lies within the rounding of `b`'s camera
-    /// coordinates (`CLIP_ROUNDING` of their largest) of its boundary:
-    /// then those coordinates cannot tell on which side of it the eye is.
-    /// A mirror box 6 thick reaching from −1e20 to 1e30, with the camera
-    /// inside it 0.5 from a face, lost its thickness to rounding at 1e20
-    /// and projected to half the screen: no primary ray found it. Such a
-    /// box is taken to cover the whole screen, over its whole depth in
-    /// each region (`project_box`, `depth_range_whole`).
-    pub fn eye_at_boundary(&self, b: &Aabb) -> bool {
-        self.eye_near_boundary(b, b)
-    }
-
-    /// `eye_at_boundary` for a box `b` padded around a `core` inside it:
-    /// whether the eye lies in the band from within rounding outside `b`
-    /// to within rounding inside `core`, where neither box's coordinates
-    /// tell on which side of the boundary it is.
+    /// Whether the eye lies in the band from within rounding outside `b`
+    /// to within rounding inside `core` (the box `b` was padded from, or
+    /// `b` itself), rounding being `CLIP_ROUNDING` of the coordinates'
+    /// largest: there neither box's coordinates tell on which side of the
+    /// boundary the eye is. A mirror box 6 thick reaching from −1e20 to
+    /// 1e30, with the camera inside it 0.5 from a face, lost its thickness
+    /// to rounding at 1e20 and projected to half the screen: no primary ray
+    /// found it. Such a box is taken to cover the whole screen, over its
+    /// whole depth in each region (`project_box`, `depth_range_whole`).
     pub fn eye_near_boundary(&self, b: &Aabb, core: &Aabb) -> bool {
         if b.is_empty() {
             return false;
@@ -713,7 +709,7 @@ mod tests {
             let v = view(dir);
             for far in [1e12, 1e16, 1e20] {
                 let b = Aabb::new(Vec3::new(-far, 0.5, -0.5), Vec3::new(4.0, 2.0, 0.25));
-                let (r, _, _) = v.project_box(&b, Region::Front).expect("in front");
+                let (r, _, _) = v.project_box(&b, &b, Region::Front).expect("in front");
                 // Points of the box's x-edges just in front of the eye plane.
                 for (y, z) in [(0.5, -0.5), (0.5, 0.25), (2.0, -0.5), (2.0, 0.25)] {
                     for eps in [1e-3, 1e-6] {
