@@ -201,11 +201,8 @@ where
 /// pixels; `progress` is told every band of rows, traced or empty.
 ///
 /// Fails (`Error::Render`, naming the thread) if the OS refuses to start
-/// a thread (too many threads, no memory for a stack): the threads
-/// already started stop after their band, and no film is returned. A
-/// render does not go on with fewer threads than asked for, as a slower
-/// run that says nothing would mislead the timings `quality` and the
-/// benches take.
+/// a thread (`error::start_worker`): the threads already started stop
+/// after their band, and no film is returned.
 pub fn render_pass_with<T, M, S>(
     scene: &Scene,
     pass: &Pass<'_>,

@@ -1136,10 +1136,9 @@ fn cut_super_cells(
             match started {
                 Ok(w) => workers.push(w),
                 Err(e) => {
-                    // As a render fails (`render::render_pass_with`),
-                    // rather than leave the cuts to fewer threads. No
-                    // chunk is handed out any more: the threads started
-                    // finish the one they hold, and the scope joins them.
+                    // No chunk is handed out any more: the threads
+                    // started finish the one they hold, and the scope
+                    // joins them (`start_worker` says why the build fails).
                     if let Ok(mut w) = work.lock() {
                         w.by_ref().for_each(drop);
                     }

@@ -321,10 +321,8 @@ fn prepass(
         let mut handles = Vec::with_capacity(started);
         for t in 0..started {
             let trace_rows = &trace_rows;
-            // A thread the OS refuses (too many threads, no memory for a
-            // stack) fails the plan as it fails a render, rather than
-            // leave its rows to fewer threads (`render::render_pass_with`
-            // says why). The threads started trace their rows, a sampled
+            // A thread the OS refuses fails the plan (`start_worker` says
+            // why); the threads started trace their rows, a sampled
             // fraction of the image, and the scope joins them.
             let handle = start_worker(
                 scope,
