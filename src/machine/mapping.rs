@@ -28,6 +28,7 @@ use crate::machine::routing::gray;
 use crate::render::pixel_jobs;
 use crate::scene::Scene;
 use crate::trace::{CameraFrame, Film, RayCounts, Shader};
+use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
 
 /// How the load is balanced.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum)]
@@ -287,6 +288,9 @@ fn prepass(
     // are keyed by ray), so the sums are the same for any thread count.
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
     let rows: Vec<u32> = sampled(height, stride).collect();
+    // Set when a thread is refused: the plan fails, so the threads already
+    // started stop at their next row instead of tracing their share.
+    let refused = AtomicBool::new(false);
     // One thread's share: every `threads`-th sampled row from its `t`-th.
     let trace_rows = |t: usize| {
         let shader = Shader::new(scene);
@@ -297,6 +301,9 @@ fn prepass(
         }
         let (mut counts, mut stack, mut jobs) = (RayCounts::default(), Vec::new(), Vec::new());
         for &j in rows.iter().skip(t).step_by(threads) {
+            if refused.load(Relaxed) {
+                break;
+            }
             // What the paths deliver is dropped: a row's band takes it (a
             // path's rays all carry its pixel). A whole film per thread
             // and pass was a clearing of 24 MiB each at 1024x1024, half
@@ -322,14 +329,15 @@ fn prepass(
         for t in 0..started {
             let trace_rows = &trace_rows;
             // A thread the OS refuses fails the plan (`start_worker` says
-            // why); the threads started trace their rows, a sampled
-            // fraction of the image, and the scope joins them.
+            // why); the threads started stop at their next row, and the
+            // scope joins them.
             let handle = start_worker(
                 scope,
                 ("prepass", "pre-pass thread"),
                 (t, started),
                 move || trace_rows(t),
-            )?;
+            )
+            .inspect_err(|_| refused.store(true, Relaxed))?;
             handles.push(handle);
         }
         Ok(handles
