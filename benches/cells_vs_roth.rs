@@ -24,6 +24,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use hypercast::cells::{CellOptions, CellStructure, CellTracer};
+use hypercast::machine::ticks::process_cpu_seconds;
 use hypercast::render::{RenderOptions, RenderStats, render_roth, render_with};
 use hypercast::scene::{Scene, load::compile_model, load_scene};
 
@@ -33,18 +34,6 @@ const CELLS_RUNS: usize = 7;
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
-}
-
-/// CPU seconds used by this process so far, all threads together.
-fn process_cpu_seconds() -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: clock_gettime writes one timespec, which we own.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) };
-    assert_eq!(rc, 0, "the process CPU clock is available");
-    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
 }
 
 /// Wall and CPU seconds of `f`.

@@ -12,8 +12,8 @@
 
 use crate::cells::CellOptions;
 use crate::error::Result;
-use crate::machine::calibrate::{self, Calibration};
-use crate::machine::{self, MachineOptions, MachineStats};
+use crate::machine::calibrate::Calibration;
+use crate::machine::{self, MachineOptions, MachineStats, ticks};
 use crate::render::{self, Accel, Adaptive, RenderOptions, RenderStats};
 use crate::report::quality::{Knobs, Point};
 use crate::report::{self, DisplayImage, compare, image_io};
@@ -235,13 +235,12 @@ pub fn model_runs(
             let mut s = scene.clone();
             s.max_depth = k.max_depth;
             let mopts = MachineOptions::new(opts.width, opts.height, k.spp);
-            let cpu0 = calibrate::process_cpu_seconds();
+            let cpu0 = ticks::process_cpu_seconds();
             let (film, ms, _, aa) =
                 machine::render_adaptive(&s, &topo, &mopts, k.adaptive, &|_| {})?;
             // The build and pre-pass run on one thread: their CPU time is
             // their wall time.
-            let cpu =
-                calibrate::process_cpu_seconds() - cpu0 - ms.build_seconds - ms.prepass_seconds;
+            let cpu = ticks::process_cpu_seconds() - cpu0 - ms.build_seconds - ms.prepass_seconds;
             progress(aa.passes as u64 * work_units(opts.height, k.spp));
             let display = reference.comparable(&film.to_linear());
             points.push(Point {

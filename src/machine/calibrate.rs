@@ -111,21 +111,6 @@ impl Calibration {
     }
 }
 
-/// CPU seconds of the whole process so far (every thread): beside a
-/// machine run's wall time, how many cores the run really had.
-pub fn process_cpu_seconds() -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: clock_gettime writes one timespec, which we own.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) };
-    if rc != 0 {
-        return 0.0;
-    }
-    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
-}
-
 /// The dimensions this host has cores for: every d with 2^d node threads
 /// no more than `cores`.
 pub fn host_dimensions(cores: usize) -> Vec<u32> {

@@ -33,7 +33,7 @@ use super::message::{
     Active, Finished, LinkModel, NodeReport, Part, Path, Routed, Share, ToHost, ToNode,
 };
 use super::routing::{NodeId, next_dimension};
-use super::ticks::Ticks;
+use super::ticks::{Ticks, thread_cpu_seconds};
 use super::transport::{Link, NodeLinks};
 use crate::cells::{CellStructure, CellTracer, Region, Walk};
 use crate::render::sample_offset_from;
@@ -124,21 +124,6 @@ const HOST_COALESCE: f64 = 500e-6;
 pub fn lag_slices(nodes: usize, cores: usize) -> f64 {
     let per_core = nodes as f64 / cores.max(1) as f64;
     (LAG_SLICES_OWN_CORE / per_core).clamp(LAG_SLICES, LAG_SLICES_OWN_CORE)
-}
-
-/// Thread CPU time in seconds: what the node computed, not what the host's
-/// scheduler gave other threads meanwhile.
-pub fn cpu_seconds() -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: clock_gettime writes one timespec, which we own.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    if rc != 0 {
-        return 0.0;
-    }
-    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
 }
 
 /// The bytes a node's share occupies once loaded: the structure, the
@@ -650,7 +635,7 @@ impl<'a> Node<'a> {
             // Host time from before the reading: a window's CPU time must
             // lie within its host time (`settle`).
             None => (
-                CpuWindow::open(cpu_seconds(), self.clock, now),
+                CpuWindow::open(thread_cpu_seconds(), self.clock, now),
                 Ticks::now(),
             ),
         };
@@ -748,7 +733,7 @@ impl<'a> Node<'a> {
     /// once charged a node computing after its last message.
     fn settle(&mut self, w: CpuWindow) -> (f64, Ticks) {
         let before = Ticks::now();
-        let cpu_now = cpu_seconds();
+        let cpu_now = thread_cpu_seconds();
         let tail = Ticks::now().seconds_since(w.slice_end);
         let tail = if tail < CPU_WINDOW { tail } else { 0.0 };
         let cpu = (cpu_now - w.cpu0 - w.excluded - tail).max(0.0);
