@@ -358,11 +358,20 @@ impl CellStructure {
         // inside, was clipped to the directions from the eye into it: a
         // ray that left the box through the eye, its exit at the very
         // start of the region after the eye plane, found that cell
-        // without the box, and missed the exit Roth found.)
-        let whole: Vec<bool> = prim_box
+        // without the box, and missed the exit Roth found.) A box holding
+        // the eye deeper is clipped, but never away (`EyeAt::Inside`).
+        let eye_at: Vec<EyeAt> = prim_box
             .iter()
             .zip(&core_box)
-            .map(|(b, core)| view.eye_near_boundary(b, core))
+            .map(|(b, core)| {
+                if view.eye_near_boundary(b, core) {
+                    EyeAt::Boundary
+                } else if b.contains(view.eye) {
+                    EyeAt::Inside
+                } else {
+                    EyeAt::Outside
+                }
+            })
             .collect();
         let mut region_cells = |region: Region| -> Result<RegionCells> {
             let projected: Vec<Option<(Rect, f64, f64)>> = prim_box
@@ -426,7 +435,7 @@ impl CellStructure {
                 region,
                 &mut partition.leaves,
                 &cam_boxes,
-                &whole,
+                &eye_at,
                 opts.build_threads,
             )?;
             let mut first_cell = Vec::with_capacity(partition.leaves.len() + 1);
@@ -1056,6 +1065,29 @@ const WALK_ROUNDING: f64 = 1e-12;
 /// cut in 9 ms on one thread).
 const PARALLEL_CUT_PRIMS: usize = 4096;
 
+/// Where the eye lies with respect to a primitive's padded minimal box,
+/// which decides how the box's depth in a super cell is found
+/// (`cut_super_cells`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum EyeAt {
+    /// On its boundary, to rounding (`View::eye_near_boundary`): no side
+    /// of it can be told, so it takes its whole depth in every super cell.
+    Boundary,
+    /// Inside, deeper than rounding. Clipped by each super cell's prism,
+    /// which in front always meets it: in a super cell thin enough, the
+    /// prism's part in the box lies next to the eye, narrower than the
+    /// clip's rounding, and the clip loses it. (Found by
+    /// `random_scenes_seen_from_a_box_face_edge_or_corner_render_identically`,
+    /// seed 2731: the eye on an edge of a box, inside the boxes of the
+    /// other operands of its intersection, which Algorithm 1 cut by the
+    /// box's own grown by 1e-9; a super cell 7.5e-10 wide lost them, so
+    /// its first cell held the box alone, whose intersection was then
+    /// empty, and a ray leaving the box through the eye missed its exit.)
+    Inside,
+    /// Outside: clipped, and left out where the clip finds nothing.
+    Outside,
+}
+
 /// Cuts every super cell of a region into cells along depth (section 3.3,
 /// `depth_partition`), dropping from each the primitives whose box does
 /// not reach into it. Independent per super cell, so spread over the
@@ -1068,7 +1100,7 @@ fn cut_super_cells(
     region: Region,
     leaves: &mut [bsp::Leaf],
     cam_boxes: &[Option<projection::CamBox>],
-    whole: &[bool],
+    eye_at: &[EyeAt],
     threads: usize,
 ) -> Result<Vec<Vec<CutCell>>> {
     let cut_one = |leaf: &mut bsp::Leaf| -> Vec<CutCell> {
@@ -1079,12 +1111,19 @@ fn cut_super_cells(
             let cb = cam_boxes[p as usize]
                 .as_ref()
                 .expect("the BSP lists only primitives with a screen rect, and each has a cam box");
-            if whole[p as usize] {
-                let (z0, z1) = View::depth_range_whole(cb, region);
-                extents.push((p, z0, z1));
-                return true;
-            }
-            match View::depth_range_in(cb, region, &leaf.rect) {
+            let range = match eye_at[p as usize] {
+                EyeAt::Boundary => Some(View::depth_range_whole(cb, region)),
+                EyeAt::Inside => View::depth_range_in(cb, region, &leaf.rect).or_else(|| {
+                    // Every direction from the eye starts inside the box,
+                    // so in front every super cell's prism meets it; a
+                    // clip that says otherwise lost to rounding a part
+                    // too thin for it, next to the eye, and the box's
+                    // whole depth stands in.
+                    (region == Region::Front).then(|| View::depth_range_whole(cb, region))
+                }),
+                EyeAt::Outside => View::depth_range_in(cb, region, &leaf.rect),
+            };
+            match range {
                 Some((z0, z1)) => {
                     extents.push((p, z0, z1));
                     true
