@@ -455,7 +455,9 @@ fn random_csg_scenes_render_identically_with_cells_and_roth() {
 /// of cutting the screen; and rays the image does not shoot (aimed at the
 /// eye from inside the box, leaving from the eye, through cell corners)
 /// hit what Roth's hit. Seed 2731, the first of 20,000 to fail, found
-/// boxes holding the eye clipped away (`cells::EyeAt::Inside`); the rays
+/// boxes holding the eye clipped away (`cells::EyeAt::Inside`), and seed
+/// 47615, the only one of 30,000..60,000 after that, a cone's roots
+/// blurred at its apex (`shape::cone_discriminant`); the rays
 /// aimed at the eye are scaled so that rounding puts their crossing there
 /// a little before or past it, without which it passed. (Before that fix,
 /// with the band of `View::eye_near_boundary` cut back to leave out an
@@ -467,8 +469,10 @@ fn random_scenes_seen_from_a_box_face_edge_or_corner_render_identically() {
     let mut placed = 0;
     // And seeds a hunt once found failing, always: 2731 puts the eye on an
     // edge of a box inside the boxes of the other operands of its
-    // intersection (`cells::EyeAt::Inside`).
-    for seed in seeds(0..120).chain([2731]) {
+    // intersection (`cells::EyeAt::Inside`); 47615 on the corner of a
+    // cone's box that is its apex, where a ray aimed at the eye met the
+    // cone short of it, outside its box (`shape::cone_discriminant`).
+    for seed in seeds(0..120).chain([2731, 47615]) {
         let (primitives, mut model) = lit_random_scene(seed, 40);
         let scene = load(&scene_to_string(&model, SceneSyntax::Ron).unwrap());
         let mut next = xorshift(0xA076_1D64_78BD_642F ^ seed.wrapping_mul(0x9E37_79B9_7F4A_7C15));
