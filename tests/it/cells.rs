@@ -444,9 +444,10 @@ fn random_csg_scenes_render_identically_with_cells_and_roth() {
 }
 
 /// The eye on the boundary of a minimal box (Algorithm 1), every other
-/// seed that of a Box primitive: on a face, an edge or a corner, exactly
-/// or nudged in or out by a little more than the build's rounding bands,
-/// looking into the box, along its face or away from it. There the box's
+/// seed that of a Box primitive, one in five at a cone's apex or a
+/// polygon's vertex: on a face, an edge or a corner, exactly or nudged in
+/// or out by a little more than the build's rounding bands, looking into
+/// the box, along its face or away from it. There the box's
 /// projection has no bounds, and every side plane of the screen system
 /// passes next to the box's boundary: the case a hunt found once by
 /// chance (seed 58571 of `random_rays_in_random_scenes_hit_what_roth_hits`,
@@ -613,8 +614,9 @@ fn xorshift(seed: u64) -> impl FnMut() -> u64 {
 
 /// A point on the boundary of a random minimal box of `scene` (every other
 /// seed, where there is one, the box of a Box primitive that no transform
-/// turns: a point on the solid's own surface): on a face, an edge or a
-/// corner by the seed, exactly or nudged in or out by a little more than
+/// turns: a point on the solid's own surface; one seed in five a corner
+/// of a surface, `sharp_points`): on a face, an edge or a corner by the
+/// seed, exactly or nudged in or out by a little more than
 /// the rounding bands the build keeps around a box (1e-12 of the scene's
 /// reach) or its padding (1e-9 of the box's magnitude). Also the box, the
 /// first fixed axis and how many are fixed (the next ones, cyclically).
@@ -642,25 +644,70 @@ fn on_a_box_boundary(
     if boxes.is_empty() {
         return None;
     }
+    let nudge = [0.0, 0.0, 1e-13, 1e-11, 1e-9, 1e-7][(seed / 5 % 6) as usize];
+    let nudged = |p: &mut Vec3, a: usize, next: &mut dyn FnMut() -> u64| {
+        if nudge > 0.0 {
+            let sign = if next().is_multiple_of(2) { 1.0 } else { -1.0 };
+            p[a] += sign * nudge * (p[a].abs() + 1.0);
+        }
+    };
+    // One seed in five, where there is one, a point where the surface
+    // itself has a corner: a pointed cone's apex, a triangle's or a
+    // polygon's vertex (where a ray's roots meet, and every face of the
+    // box may pass).
+    if seed % 5 == 4 {
+        let corners: Vec<_> = scene.primitives.iter().flat_map(sharp_points).collect();
+        if !corners.is_empty() {
+            let (b, mut p) = corners[next() as usize % corners.len()];
+            for a in 0..3 {
+                nudged(&mut p, a, &mut *next);
+            }
+            return Some((b, p, 0, 3));
+        }
+    }
     let b = boxes[next() as usize % boxes.len()];
     let unit = |n: u64| (n % 1_000_001) as f64 / 1e6;
     let mut p = b.min + (b.max - b.min) * Vec3::new(unit(next()), unit(next()), unit(next()));
     // One fixed coordinate: a face; two: an edge; three: a corner.
     let first = next() as usize % 3;
     let fixed = 1 + (seed % 3) as usize;
-    let nudge = [0.0, 0.0, 1e-13, 1e-11, 1e-9, 1e-7][(seed / 5 % 6) as usize];
     for a in (first..first + fixed).map(|a| a % 3) {
         p[a] = if next().is_multiple_of(2) {
             b.min[a]
         } else {
             b.max[a]
         };
-        if nudge > 0.0 {
-            let sign = if next().is_multiple_of(2) { 1.0 } else { -1.0 };
-            p[a] += sign * nudge * (p[a].abs() + 1.0);
-        }
+        nudged(&mut p, a, &mut *next);
     }
     Some((b, p, first, fixed))
+}
+
+/// The points where a primitive's surface has a corner, in world space,
+/// each with the primitive's box: a pointed cone's apex, the vertices of a
+/// triangle or a polygon.
+fn sharp_points(p: &hypercast::csg::Primitive) -> Vec<(Aabb, Vec3)> {
+    let points = match &p.shape {
+        Shape::Cone {
+            base,
+            base_radius,
+            top,
+            top_radius,
+            ..
+        } => [(*base, *base_radius), (*top, *top_radius)]
+            .into_iter()
+            .filter(|&(_, r)| r == 0.0)
+            .map(|(c, _)| c)
+            .collect(),
+        Shape::Triangle { a, b, c } => vec![*a, *b, *c],
+        Shape::Polygon(poly) => poly.vertices.clone(),
+        _ => vec![],
+    };
+    points
+        .into_iter()
+        .map(|q| p.transform.as_ref().map_or(q, |m| m.point(q)))
+        .filter(|q| q.is_finite() && !p.bounds.is_empty())
+        .map(|q| (p.bounds, q))
+        .collect()
 }
 
 /// Lights on the boundary of a minimal box (`on_a_box_boundary`), so that
