@@ -480,7 +480,6 @@ fn random_scenes_seen_from_a_box_face_edge_or_corner_render_identically() {
         let Some((b, eye, first, fixed)) = on_a_box_boundary(&scene, seed, &mut next) else {
             continue;
         };
-        let unit = |n: u64| (n % 1_000_001) as f64 / 1e6;
         let centre = (b.min + b.max) * 0.5;
         let free = (first + fixed) % 3;
         let dir = match seed / 3 % 3 {
@@ -600,6 +599,11 @@ fn random_scenes_seen_from_a_box_face_edge_or_corner_render_identically() {
     );
 }
 
+/// A number in [0, 1] from one of `xorshift`'s, in steps of a millionth.
+fn unit(n: u64) -> f64 {
+    (n % 1_000_001) as f64 / 1e6
+}
+
 /// A xorshift stream of 53-bit numbers from `seed` (made odd: the state
 /// must not be 0), for the tests' own random choices.
 fn xorshift(seed: u64) -> impl FnMut() -> u64 {
@@ -666,7 +670,6 @@ fn on_a_box_boundary(
         }
     }
     let b = boxes[next() as usize % boxes.len()];
-    let unit = |n: u64| (n % 1_000_001) as f64 / 1e6;
     let mut p = b.min + (b.max - b.min) * Vec3::new(unit(next()), unit(next()), unit(next()));
     // One fixed coordinate: a face; two: an edge; three: a corner.
     let first = next() as usize % 3;
@@ -1042,13 +1045,8 @@ fn random_rays_in_random_scenes_hit_what_roth_hits() {
     for seed in seeds(0..100).chain([58571]) {
         // The rays' own stream, by the seed alone, so that a failing seed
         // reproduces in any range (xorshift: the state must not be 0).
-        let mut s = (0x9E37_79B9_7F4A_7C15u64 ^ seed.wrapping_mul(0xD1B5_4A32_D192_ED03)) | 1;
-        let mut next = move || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut bits = xorshift(0x9E37_79B9_7F4A_7C15 ^ seed.wrapping_mul(0xD1B5_4A32_D192_ED03));
+        let mut next = move || bits() as f64 / (1u64 << 53) as f64;
         let (model, about) = random_scene(seed);
         let ron = scene_to_string(&model, SceneSyntax::Ron).unwrap();
         let scene = load(&ron);
@@ -1222,14 +1220,9 @@ fn case_14_union_with_an_empty_intersection_has_the_other_objects_bounds() {
 /// 2000 unit spheres with centres within 0.1 of (0, 0, 10), in a balanced
 /// union or a left-deep chain of unions.
 fn pile_of_spheres(balanced: bool) -> SceneFile {
-    let mut s = 0x2545_F491_4F6C_DD1Du64;
-    let mut next = move || {
-        s ^= s << 13;
-        s ^= s >> 7;
-        s ^= s << 17;
-        // Within 0.1 of the centre: ±0.1/√3 per coordinate.
-        ((s >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0) * 0.057
-    };
+    let mut bits = xorshift(0x2545_F491_4F6C_DD1D);
+    // Within 0.1 of the centre: ±0.1/√3 per coordinate.
+    let mut next = move || (bits() as f64 / (1u64 << 53) as f64 * 2.0 - 1.0) * 0.057;
     let spheres: Vec<Node> = (0..2000)
         .map(|_| Node::Sphere {
             center: [next(), next(), 10.0 + next()],
