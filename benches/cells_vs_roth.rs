@@ -40,7 +40,11 @@ fn median(mut v: Vec<f64>) -> f64 {
 fn timed<T>(f: impl FnOnce() -> T) -> (f64, f64, T) {
     let (t, c) = (Instant::now(), process_cpu_seconds());
     let out = f();
-    (t.elapsed().as_secs_f64(), process_cpu_seconds() - c, out)
+    let c1 = process_cpu_seconds();
+    // `process_cpu_seconds` reads 0 where the clock is unavailable; the
+    // table's CPU columns would then be wrong, not merely noisy.
+    assert!(c1 > 0.0, "the process CPU clock is available");
+    (t.elapsed().as_secs_f64(), c1 - c, out)
 }
 
 /// Builds the structure and renders with it (both timed together).
