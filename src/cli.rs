@@ -62,6 +62,10 @@ pub struct MachineArgs {
     /// How super cells are mapped to nodes: balanced by a cost pre-pass, or equal image areas.
     #[arg(long, value_enum, default_value_t = Mapping::Balanced)]
     pub mapping: Mapping,
+    /// Whether a node holds copies of other nodes' super cells in the memory its share leaves
+    /// free, so that rays reaching them need no message (none: the paper's plan alone).
+    #[arg(long, value_enum, default_value_t = machine::Replicas::Auto)]
+    pub replicas: machine::Replicas,
     /// Envelopes (a slice's messages for one link) each link holds before its sender must wait (1 to 1024).
     #[arg(long, default_value_t = machine::DEFAULT_CAPACITY)]
     pub link_capacity: usize,
@@ -109,6 +113,7 @@ impl MachineArgs {
             ..Default::default()
         };
         o.mapping = self.mapping;
+        o.replicas = self.replicas;
         o.capacity = self.link_capacity;
         o.fail = match &self.inject_fault {
             None => None,
@@ -677,6 +682,7 @@ pub fn machine_json(topo: &Topology, ms: &MachineStats) -> Vec<(&'static str, se
                 "node": n.node,
                 "cells": n.cells,
                 "super_cells": n.super_cells,
+                "copies": n.copies,
                 "primitives": n.primitives,
                 "memory_bytes": n.memory_bytes,
                 "structure_bytes": n.structure_bytes,
@@ -708,6 +714,11 @@ pub fn machine_json(topo: &Topology, ms: &MachineStats) -> Vec<(&'static str, se
         ("message_bytes", json!(ms.message_bytes)),
         ("hops", json!(ms.hops)),
         ("mapping", json!(ms.mapping.map(|m| m.name()))),
+        ("replicas", json!(ms.replicas.map(|r| r.name()))),
+        (
+            "copies",
+            json!(ms.per_node.iter().map(|n| n.copies).sum::<u64>()),
+        ),
         ("window", json!(ms.window)),
         ("imbalance", num(ms.imbalance)),
         ("predicted_imbalance", num(ms.predicted_imbalance)),
@@ -827,7 +838,9 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
     if plan.subdivision != machine::host::Subdivision::Balanced {
         println!("subdivision         {}", plan.subdivision.describe());
     }
-    println!("node  super_cells  cells  primitives  memory_MiB  structure_MiB  estimated_work");
+    println!(
+        "node  super_cells  copies  cells  primitives  memory_MiB  structure_MiB  estimated_work"
+    );
     let mut nodes_json = Vec::new();
     for (i, (share, local)) in plan.shares.iter().enumerate() {
         let owned: Vec<(usize, usize)> = (0..2)
@@ -846,13 +859,14 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
         // `+ 0.0`: an empty float sum is -0.0, which prints as "-0".
         let work: f64 = owned.iter().map(|&(r, s)| plan.work[r][s]).sum::<f64>() + 0.0;
         println!(
-            "{i:>4}  {:>11}  {cells:>5}  {:>10}  {:>10.3}  {:>13.3}  {work:>14.0}",
+            "{i:>4}  {:>11}  {:>6}  {cells:>5}  {:>10}  {:>10.3}  {:>13.3}  {work:>14.0}",
             owned.len(),
+            plan.replicas[i],
             local.primitives.len(),
             plan.share_bytes[i] as f64 / 1048576.0,
             share.bytes() as f64 / 1048576.0
         );
-        nodes_json.push(json!({"node": i, "super_cells": owned.len(), "cells": cells, "primitives": local.primitives.len(), "memory_bytes": plan.share_bytes[i], "structure_bytes": share.bytes(), "estimated_work": work}));
+        nodes_json.push(json!({"node": i, "super_cells": owned.len(), "copies": plan.replicas[i], "cells": cells, "primitives": local.primitives.len(), "memory_bytes": plan.share_bytes[i], "structure_bytes": share.bytes(), "estimated_work": work}));
     }
     let held: usize = plan.shares.iter().map(|(c, _)| c.bytes()).sum();
     println!(

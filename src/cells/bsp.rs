@@ -90,6 +90,10 @@ pub struct Partition {
     pub leaves: Vec<Leaf>,
     /// Segments cut by chosen lines during the build.
     pub splits: u64,
+    /// Splits the cost model alone would not have made: for `min_leaves`
+    /// or a hot region (`partition_in`). Without any, the partition is
+    /// the one a single node builds.
+    pub forced: u64,
 }
 
 /// Limits that bound the subdivision when rectangles pile up
@@ -224,11 +228,18 @@ pub fn partition_in(
             None
         } else {
             match choice {
-                _ if let Some(c) = hot.iter().find_map(|h| h.split(&p.rect)) => Some(c),
+                _ if let Some(c) = hot.iter().find_map(|h| h.split(&p.rect)) => {
+                    out.forced += 1;
+                    Some(c)
+                }
                 SegmentChoice::FewestSplits => choose(&p.segs),
                 SegmentChoice::Sampled => {
                     let force = leaves_if_stopped < min_leaves;
-                    cost.choose(&p.rect, &p.sorted, rects, &mut scratch, force)
+                    let c = cost.choose(&p.rect, &p.sorted, rects, &mut scratch, force);
+                    if c.is_some_and(|(_, pays)| !pays) {
+                        out.forced += 1;
+                    }
+                    c.map(|(line, _)| line)
                 }
             }
         };
@@ -473,7 +484,7 @@ impl Cost {
     }
 
     /// The best split of `region` holding `prims`, if any lowers the cost
-    /// (`force`: the best, whether or not it does).
+    /// (`force`: the best, whether or not it does), and whether it does.
     fn choose(
         &self,
         region: &Rect,
@@ -481,7 +492,7 @@ impl Cost {
         rects: &[Option<Rect>],
         scratch: &mut SweepScratch,
         force: bool,
-    ) -> Option<(u8, f64)> {
+    ) -> Option<((u8, f64), bool)> {
         let n = sorted[0][0].len();
         if n == 0 {
             return None;
@@ -550,7 +561,7 @@ impl Cost {
                 }
             }
         }
-        best.1
+        best.1.map(|line| (line, best.0 < leaf))
     }
 }
 

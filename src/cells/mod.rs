@@ -22,7 +22,7 @@ use crate::trace::CameraFrame;
 
 pub use bsp::{BspNode, Hot, Partition, SegmentChoice};
 pub use projection::{CamBox, CamRay, Rect, Region, View};
-pub use traverse::{CELL_WORK, CellTracer, TEST_WORK, Walk, WalkPoint};
+pub use traverse::{CELL_WORK, CellTracer, Copies, Move, TEST_WORK, Walk, WalkPoint};
 
 /// No subtree: the cell is empty.
 pub const NO_SUBTREE: u32 = u32::MAX;
@@ -226,6 +226,10 @@ pub struct BuildStats {
     /// Primitives dropped because their minimal box is empty (case 14).
     pub culled_primitives: usize,
     pub bsp_splits: u64,
+    /// Splits the cost model alone would not have made (for the
+    /// machine's balance, `Partition::forced`): 0 where the structure is
+    /// the one a single node builds.
+    pub forced_splits: u64,
     pub bytes: usize,
 }
 
@@ -347,7 +351,7 @@ impl CellStructure {
         let mut subtrees = CsgTree::new();
         let mut origin = Vec::new();
         let mut memo: HashMap<Vec<u32>, u32> = HashMap::new();
-        let mut splits = 0;
+        let (mut splits, mut forced) = (0, 0);
         // Primitives per cell, for the statistics only.
         let mut prim_counts = Vec::new();
         // A box with the eye at its boundary, to rounding and padding, is
@@ -413,15 +417,29 @@ impl CellStructure {
             } else {
                 0
             };
-            let mut partition = bsp::partition_in(
-                &rects,
-                opts.choice,
-                window,
-                Some(&weights),
-                min_leaves,
-                hot[region as usize],
-            );
+            // Forced splits only where the cost model alone makes fewer
+            // super cells than asked: forced from the start, the first
+            // levels of the BSP (when only a few regions exist) split
+            // where it would not pay, even for a scene that makes plenty
+            // (the sphereflake of level 4 gained 2 super cells on 492 at
+            // d = 1, and the host then had to build the single node's
+            // structure too, to bound its copies: `machine::replicas`).
+            let partition_with = |min_leaves| {
+                bsp::partition_in(
+                    &rects,
+                    opts.choice,
+                    window,
+                    Some(&weights),
+                    min_leaves,
+                    hot[region as usize],
+                )
+            };
+            let mut partition = partition_with(0);
+            if partition.leaves.len() < min_leaves {
+                partition = partition_with(min_leaves);
+            }
             splits += partition.splits;
+            forced += partition.forced;
             let cam_boxes: Vec<Option<projection::CamBox>> = prim_box
                 .iter()
                 .zip(&rects)
@@ -507,6 +525,7 @@ impl CellStructure {
             stats: BuildStats::default(),
         };
         cs.stats = cs.compute_stats(tree, culled, distinct, splits, &prim_counts);
+        cs.stats.forced_splits = forced;
         cs.stats.build_seconds = start.elapsed().as_secs_f64();
         Ok(cs)
     }

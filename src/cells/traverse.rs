@@ -35,6 +35,16 @@ pub struct CellRef {
     pub cell: u32,
 }
 
+/// A ray's move to another node, as the pre-pass walking under a mapping
+/// records it (`CellTracer::record_work_for`): the node it left, and the
+/// super cell whose owner it moved to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Move {
+    pub from: u16,
+    pub region: Region,
+    pub super_cell: u32,
+}
+
 /// Where a ray goes after a cell.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Step {
@@ -616,9 +626,13 @@ pub struct CellTracer<'a> {
     /// owner, and the structure as a node that owns nothing holds it (every
     /// cell with content remote, with its hull).
     owners: Option<(Box<[Vec<u16>; 2]>, &'a CellStructure)>,
-    /// When recording for a mapping, the times a ray moved to another
-    /// node: the machine's messages of paths between nodes.
-    moves: u64,
+    /// When recording for a mapping with copies (`record_work_with_copies`):
+    /// per super cell of each region, the nodes that hold a copy of it.
+    copies: Option<Box<Copies>>,
+    /// When recording for a mapping, every move of a ray to another node
+    /// (the machine's messages of paths between nodes): the node it left
+    /// and the super cell it moved to.
+    moves: Vec<Move>,
     /// When recording: the super cell where the last hit of a ray other
     /// than a shadow ray was, where the machine shades it and starts the
     /// rays it spawns.
@@ -668,7 +682,8 @@ impl<'a> CellTracer<'a> {
             eval_counts: EvalCounts::default(),
             profile: None,
             owners: None,
-            moves: 0,
+            copies: None,
+            moves: Vec::new(),
             spawned_at: None,
             shadow_walk: false,
             occluding: false,
@@ -1035,9 +1050,24 @@ impl<'a> CellTracer<'a> {
         self.owners = Some((Box::new(owner), skeleton));
     }
 
+    /// `record_work_for`, where nodes also hold copies of super cells they
+    /// do not own (`machine::replicas`): a ray that reaches a cell its node
+    /// holds a copy of stays there, and its work there is the node's
+    /// (booked to the super cell it was on). Every ray but a primary one
+    /// starts on the node where its parent's hit was.
+    pub fn record_work_with_copies(
+        &mut self,
+        owner: [Vec<u16>; 2],
+        skeleton: &'a CellStructure,
+        copies: Copies,
+    ) {
+        self.record_work_for(owner, skeleton);
+        self.copies = Some(Box::new(copies));
+    }
+
     /// The moves of rays between nodes recorded since `record_work_for`.
-    pub fn recorded_moves(&self) -> u64 {
-        self.moves
+    pub fn recorded_moves(&self) -> &[Move] {
+        &self.moves
     }
 
     /// The work recorded since `record_work`.
@@ -1283,14 +1313,17 @@ impl CellTracer<'_> {
         // other than a primary ray's starts where its parent's hit was,
         // which need not hold its first cell, far from the ray's origin.
         // (Any other starts in or next to its parent's cell, and is taken
-        // to start on its first cell's node.)
+        // to start on its first cell's node; but where nodes hold copies,
+        // that cell may be a copy on the parent's node: there it starts.)
         let primary = recording && ray.origin == self.cs.view.eye;
         let mut on = match (&self.owners, self.spawned_at) {
-            (Some((owners, _)), Some((r, s))) if clipped && !primary => Some(OnNode {
-                node: owners[r as usize][s as usize],
-                region: r,
-                super_cell: s,
-            }),
+            (Some((owners, _)), Some((r, s))) if (clipped || self.copies.is_some()) && !primary => {
+                Some(OnNode {
+                    node: owners[r as usize][s as usize],
+                    region: r,
+                    super_cell: s,
+                })
+            }
             _ => None,
         };
         let first = from.map_or(0, |p| usize::from(order[0] != p.region));
@@ -1320,7 +1353,12 @@ impl CellTracer<'_> {
             // clip's test.
             if ask_cache {
                 ask_cache = false;
-                if let Some(h) = self.recorded_cache_test(ray, (t_min, t_max), region, s) {
+                // On the node the ray starts on: with copies, where its
+                // parent's hit was.
+                let (r0, s0) = on
+                    .filter(|_| self.copies.is_some())
+                    .map_or((region, s), |o| (o.region, o.super_cell));
+                if let Some(h) = self.recorded_cache_test(ray, (t_min, t_max), r0, s0) {
                     return Walk::Hit(h);
                 }
             }
@@ -1373,9 +1411,11 @@ impl CellTracer<'_> {
                 };
                 if let Some(h) = hit {
                     // A hit is in a cell searched here (never one walked
-                    // through), so booked to its own super cell.
+                    // through), so booked to its own super cell, or, in a
+                    // copy, to the one its node's walk is booked to.
                     if recording && !self.shadow_walk {
-                        self.spawned_at = Some((region, s));
+                        self.spawned_at =
+                            Some(on.map_or((region, s), |o| (o.region, o.super_cell)));
                     }
                     self.hint[slot] = s;
                     if let Some(o) = on {
@@ -1517,6 +1557,10 @@ impl CellTracer<'_> {
     }
 }
 
+/// Per super cell of each region, the nodes that hold a copy of it
+/// (`CellTracer::record_work_with_copies`).
+pub type Copies = [Vec<Vec<u16>>; 2];
+
 /// Where the ray is on the machine, when recording for a mapping: its
 /// node, and the super cell whose work the node's walk is booked to.
 #[derive(Clone, Copy)]
@@ -1570,6 +1614,7 @@ impl CellTracer<'_> {
     ) -> Option<Hit> {
         let subtree = self.cs.region(region).subtree[k as usize];
         let mut through = None;
+        let mut book_to = None;
         if let Some((owners, skeleton)) = &self.owners {
             let node = owners[region as usize][s as usize];
             let here = OnNode {
@@ -1577,11 +1622,22 @@ impl CellTracer<'_> {
                 region,
                 super_cell: s,
             };
+            let copied = |o: &OnNode| {
+                self.copies
+                    .as_ref()
+                    .is_some_and(|c| c[region as usize][s as usize].contains(&o.node))
+            };
             match *on {
+                // Walked and searched on the ray's node, in its copy.
+                Some(o) if o.node != node && copied(&o) => book_to = Some((o.region, o.super_cell)),
                 Some(o) if o.node != node => {
                     if self.meets_remote(skeleton.region(region), k, t_in, t_end) {
                         self.next_ray_id();
-                        self.moves += 1;
+                        self.moves.push(Move {
+                            from: o.node,
+                            region,
+                            super_cell: s,
+                        });
                         *on = Some(here);
                     } else {
                         through = Some((o.region, o.super_cell));
@@ -1605,7 +1661,7 @@ impl CellTracer<'_> {
         } else {
             self.counters.mailbox_hits - met
         };
-        let (r, b) = through.unwrap_or((region, s));
+        let (r, b) = through.or(book_to).unwrap_or((region, s));
         if let Some(p) = &mut self.profile {
             p[r as usize][b as usize] += CELL_WORK + TEST_WORK * (tests + met);
         }

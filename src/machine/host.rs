@@ -14,6 +14,7 @@ use super::codec::{append_stamped, decode_envelope, encode_stamped, for_each_don
 use super::mapping::{self, Mapping};
 use super::message::{Finished, LinkModel, NodeReport, Part, Path, Share, ToHost, ToNode};
 use super::node;
+use super::replicas::{self, Replicas};
 use super::topology::{MAX_DIMENSION, Topology};
 use super::transport::{HostLinks, Link, NodeLinks, channels};
 use crate::cells::{CellOptions, CellStructure};
@@ -52,6 +53,8 @@ pub struct MachineOptions {
     pub spp: u32,
     pub cells: CellOptions,
     pub mapping: Mapping,
+    /// Whether nodes hold copies of other nodes' super cells.
+    pub replicas: Replicas,
     /// Messages each link holds (at least 1).
     pub capacity: usize,
     /// Test-only fault injection: node, and the paths it processes first.
@@ -66,6 +69,7 @@ impl MachineOptions {
             spp,
             cells: CellOptions::default(),
             mapping: Mapping::default(),
+            replicas: Replicas::default(),
             capacity: DEFAULT_CAPACITY,
             fail: None,
         }
@@ -94,6 +98,7 @@ pub struct MachineStats {
     pub hops: u64,
     pub window: u32,
     pub mapping: Option<Mapping>,
+    pub replicas: Option<Replicas>,
     /// Largest node busy time against the mean, measured and as the
     /// pre-pass predicted it.
     pub imbalance: f64,
@@ -262,8 +267,12 @@ pub struct Plan {
     /// What the machine added to the subdivision for its balance.
     pub subdivision: Subdivision,
     /// The times the rays of the mapping's pre-pass, walked under the
-    /// mapping, moved between nodes (`mapping::map`).
+    /// mapping, moved between nodes (`mapping::map`), without replicas.
     pub crossings: u64,
+    /// Per node: the super cells it holds copies of (`replicas`).
+    pub replicas: Vec<usize>,
+    /// Per super cell, the nodes that hold a copy of it, if any do.
+    pub copies: Option<crate::cells::Copies>,
 }
 
 /// How much the machine adds to the paper's subdivision for its balance
@@ -403,8 +412,8 @@ impl Plan {
         let cam = crate::trace::CameraFrame::new(scene, w, h);
         let pixel_area = (2.0 * cam.half_w / f64::from(w)) * (2.0 * cam.half_h / f64::from(h));
         let mut round = 0;
-        let (mut work, mut owner, as_built) = mapping::map(&cells, scene, w, h, opts.mapping, d)?;
-        let mut crossings = as_built;
+        let (mut work, mut owner, mut moves) = mapping::map(&cells, scene, w, h, opts.mapping, d)?;
+        let as_built = moves.len();
         while opts.mapping == Mapping::Balanced
             && sub == Subdivision::Balanced
             && round < HOT_ROUNDS
@@ -424,10 +433,11 @@ impl Plan {
                 cell_opts,
                 &[&next_hot[0], &next_hot[1]],
             )?;
-            let (next_work, next_owner, moves) = mapping::map(&next, scene, w, h, opts.mapping, d)?;
+            let (next_work, next_owner, next_moves) =
+                mapping::map(&next, scene, w, h, opts.mapping, d)?;
             // Splits trade messages for balance; past this, they cost more
             // than they even out (`HOT_CROSSINGS`).
-            if moves as f64 > HOT_CROSSINGS * as_built as f64 {
+            if next_moves.len() as f64 > HOT_CROSSINGS * as_built as f64 {
                 break;
             }
             // Splits are for the balance: a round that does not even the
@@ -441,26 +451,86 @@ impl Plan {
             {
                 break;
             }
-            (cells, hot, work, owner, crossings) = (next, next_hot, next_work, next_owner, moves);
+            (cells, hot, work, owner, moves) = (next, next_hot, next_work, next_owner, next_moves);
             round += 1;
         }
-        let prepass_seconds = t_pre.elapsed().as_secs_f64();
         let hulls = cells.cell_hulls();
-        let shares: Vec<(CellStructure, Scene)> = (0..n as u16)
-            .map(|i| cells.restrict_with(scene, &|r, s| owner[r as usize][s as usize] == i, &hulls))
-            .collect();
-        let share_bytes: Vec<u64> = shares
-            .iter()
-            .map(|(c, s)| node::share_bytes(c, s))
-            .collect();
+        // Each node's share of the super cells it owns.
+        let own_shares = |owner: &[Vec<u16>; 2]| -> Vec<(CellStructure, Scene)> {
+            (0..n as u16)
+                .map(|i| {
+                    cells.restrict_with(scene, &|r, s| owner[r as usize][s as usize] == i, &hulls)
+                })
+                .collect()
+        };
+        let mut shares = own_shares(&owner);
         let path_bytes = path_bound(scene);
-        let most = share_bytes.iter().copied().max().unwrap_or(0);
         // Every node may come to hold every path in flight (n windows),
         // and a window's room of finished records no credit covers, not
         // yet handed to the host's link (`local_credits`; a finished
         // record is far smaller than a path's bound).
-        let room = topo.node_memory.saturating_sub(most);
-        let window = (room / ((n as u64 + 1) * path_bytes)).min(MAX_WINDOW as u64) as u32;
+        let per_path = (n as u64 + 1) * path_bytes;
+        let window_for = |shares: &[(CellStructure, Scene)]| {
+            let most = shares
+                .iter()
+                .map(|(c, s)| node::share_bytes(c, s))
+                .max()
+                .unwrap_or(0);
+            let room = topo.node_memory.saturating_sub(most);
+            (room / per_path).min(MAX_WINDOW as u64) as u32
+        };
+        let mut window = window_for(&shares);
+        let mut replicas = vec![0; n];
+        let mut copies = None;
+        if opts.replicas == Replicas::Auto && n > 1 && window > 0 && !moves.is_empty() {
+            // What a node's share may take with copies: all but the room
+            // for `KEEP_WINDOW` of the window its own share leaves.
+            let memory = |own: &[(CellStructure, Scene)]| {
+                let keep = (f64::from(window_for(own)) * replicas::KEEP_WINDOW).ceil() as u64;
+                topo.node_memory.saturating_sub(keep * per_path)
+            };
+            let whole = cells.restrict_with(scene, &|_, _| true, &hulls);
+            // The cap counts against the structure one node builds: this
+            // one, unless the machine added super cells for its balance.
+            let single = if cells.stats.forced_splits == 0 {
+                whole.0.bytes()
+            } else {
+                let one_node = CellOptions {
+                    min_super_cells: 0,
+                    ..opts.cells
+                };
+                let one = CellStructure::build(scene, w, h, one_node)?;
+                one.restrict_with(scene, &|_, _| true, &one.cell_hulls())
+                    .0
+                    .bytes()
+            };
+            let placed = replicas::place(
+                &replicas::Machine {
+                    cells: &cells,
+                    scene,
+                    hulls: &hulls,
+                    size: (w, h),
+                    d,
+                    whole: &whole,
+                    single: single as u64,
+                },
+                (owner, shares),
+                &moves,
+                &own_shares,
+                &memory,
+            )?;
+            (owner, shares, replicas) = (placed.owner, placed.shares, placed.copied);
+            if let Some(measured) = placed.work {
+                (work, copies) = (measured, Some(placed.copies));
+            }
+            window = window_for(&shares);
+        }
+        // The mapping's time, with the copies' (their pre-pass).
+        let prepass_seconds = t_pre.elapsed().as_secs_f64();
+        let share_bytes: Vec<u64> = shares
+            .iter()
+            .map(|(c, s)| node::share_bytes(c, s))
+            .collect();
         Ok(Plan {
             replicated_bytes: node::share_bytes(&cells, scene),
             cells,
@@ -474,7 +544,9 @@ impl Plan {
             split_super_cells: hot.iter().map(Vec::len).sum(),
             rebuilds: round,
             subdivision: sub,
-            crossings,
+            crossings: moves.len() as u64,
+            replicas,
+            copies,
         })
     }
 
@@ -706,6 +778,7 @@ fn run_pass(
         virtual_seconds: run.end_clock,
         window: plan.window,
         mapping: Some(opts.mapping),
+        replicas: Some(opts.replicas),
         messages: run.messages,
         message_bytes: run.bytes,
         ..Default::default()

@@ -22,7 +22,7 @@
 //! * `EqualArea`, the naive split, weighs each super cell by its share of
 //!   the image, so that every node owns as many pixels.
 
-use crate::cells::{CellStructure, CellTracer, Hot, Rect, Region};
+use crate::cells::{CellStructure, CellTracer, Copies, Hot, Move, Rect, Region};
 use crate::error::{Result, start_worker};
 use crate::machine::routing::gray;
 use crate::render::pixel_jobs;
@@ -94,16 +94,16 @@ fn sampled(n: u32, stride: u32) -> std::iter::StepBy<std::ops::Range<u32>> {
 }
 
 /// What `map` gives: the work per super cell and region, the owner of
-/// every super cell, and the crossings between nodes.
-pub type Mapped = ([Vec<f64>; 2], [Vec<u16>; 2], u64);
+/// every super cell, and the moves of rays between nodes.
+pub type Mapped = ([Vec<f64>; 2], [Vec<u16>; 2], Vec<Move>);
 
 /// The estimated work of every super cell, per region, the owner of
 /// every super cell for `2^d` nodes (`assign`; for `Balanced` on more
 /// than one node, the grid cut again by pre-passes walked under the
-/// mapping, `RECUTS`, then `refine`), and how
-/// many times the rays of the last pre-pass walked under the mapping
-/// moved between nodes (0 where none was walked so: one node, or
-/// `EqualArea`): the estimate of the paths the machine will send. Fails
+/// mapping, `RECUTS`, then `refine`), and every move of the rays of the
+/// last pre-pass walked under the mapping between nodes (none where none
+/// was walked so: one node, or `EqualArea`): the estimate of the paths
+/// the machine will send, and where (`host::replicas`). Fails
 /// (`Error::Render`) only if the OS refuses a pre-pass thread.
 pub fn map(
     cs: &CellStructure,
@@ -134,14 +134,14 @@ pub fn map(
                     .collect()
             });
             let owner = assign(cs, &beside, &work, d);
-            Ok((work, owner, 0))
+            Ok((work, owner, Vec::new()))
         }
         Mapping::Balanced => {
             let stride = prepass_stride(width, height, 1 << d);
             let (first, _) = prepass(cs, scene, width, height, None, stride)?;
             if d == 0 {
                 let owner = assign(cs, &beside, &first, d);
-                return Ok((first, owner, 0));
+                return Ok((first, owner, Vec::new()));
             }
             // Every cell's hull, once for the walks below.
             let skeleton = skeleton(cs, scene);
@@ -153,7 +153,14 @@ pub fn map(
             // super cells then move between nodes (`refine`).
             let mut owner = grid(cs, &first, d);
             let walk = |owner: &[Vec<u16>; 2]| {
-                prepass(cs, scene, width, height, Some((owner, &skeleton)), stride)
+                prepass(
+                    cs,
+                    scene,
+                    width,
+                    height,
+                    Some((owner, &skeleton, None)),
+                    stride,
+                )
             };
             let (mut work, mut moves) = walk(&owner)?;
             let mut sum = first;
@@ -271,17 +278,17 @@ fn clamped(r: &Rect, (lo, hi): ([f64; 2], [f64; 2])) -> [Option<(f64, f64)>; 2] 
 /// counted 26 million tests where the nodes made 20 million, and its
 /// per-node loads did not correlate with the nodes' (-0.1).
 ///
-/// Also returned: the times its rays moved between nodes (walking under a
-/// mapping; 0 without one). Fails (`Error::Render`) only if the OS
+/// Also returned: its rays' moves between nodes (walking under a mapping;
+/// none without one), in the order of the rows. Fails (`Error::Render`) only if the OS
 /// refuses a thread.
 fn prepass(
     cs: &CellStructure,
     scene: &Scene,
     width: u32,
     height: u32,
-    walk: Option<(&[Vec<u16>; 2], &CellStructure)>,
+    walk: Option<WalkUnder>,
     stride: u32,
-) -> Result<([Vec<f64>; 2], u64)> {
+) -> Result<([Vec<f64>; 2], Vec<Move>)> {
     let cam = CameraFrame::new(scene, width, height);
     // On the host's cores, before any node starts, rows shared out in
     // turn. Each pixel's work is counted by its own rays alone (mailboxes
@@ -296,7 +303,10 @@ fn prepass(
         let shader = Shader::new(scene);
         let mut tracer = CellTracer::new(cs, scene);
         match walk {
-            Some((owner, skeleton)) => tracer.record_work_for(owner.clone(), skeleton),
+            Some((owner, skeleton, None)) => tracer.record_work_for(owner.clone(), skeleton),
+            Some((owner, skeleton, Some(copies))) => {
+                tracer.record_work_with_copies(owner.clone(), skeleton, copies.clone())
+            }
             None => tracer.record_work(),
         }
         let (mut counts, mut stack, mut jobs) = (RayCounts::default(), Vec::new(), Vec::new());
@@ -321,10 +331,10 @@ fn prepass(
             .recorded_work()
             .expect("record_work or record_work_for was called above")
             .clone();
-        (work, tracer.recorded_moves())
+        (work, tracer.recorded_moves().to_vec())
     };
     let started = threads.min(rows.len()).max(1);
-    let parts = std::thread::scope(|scope| -> Result<Vec<([Vec<u64>; 2], u64)>> {
+    let parts = std::thread::scope(|scope| -> Result<Vec<Recorded>> {
         let mut handles = Vec::with_capacity(started);
         for t in 0..started {
             let trace_rows = &trace_rows;
@@ -353,19 +363,31 @@ fn prepass(
             .map(|s| parts.iter().map(|p| p.0[r][s]).sum::<u64>() as f64)
             .collect()
     });
-    Ok((work, parts.iter().map(|p| p.1).sum()))
+    let moves = parts.iter().flat_map(|p| p.1.iter().copied()).collect();
+    Ok((work, moves))
 }
 
-/// Each node's work under `owner` as the pre-pass predicts it, from every
-/// `stride`-th pixel of every `stride`-th row (1: every pixel), in the
-/// units of `CellTracer::record_work`: cells entered and
+/// How a pre-pass walks as the machine will: the owner of every super
+/// cell, the structure as a node that owns nothing holds it (`skeleton`),
+/// and the copies nodes hold, if any.
+type WalkUnder<'a> = (&'a [Vec<u16>; 2], &'a CellStructure, Option<&'a Copies>);
+
+/// What a pre-pass thread recorded: work per super cell, and the moves.
+type Recorded = ([Vec<u64>; 2], Vec<Move>);
+
+/// Each node's work under `owner` (with `copies`, where nodes hold copies
+/// of others' super cells, `machine::replicas`) as the pre-pass predicts
+/// it, from every `stride`-th pixel of every `stride`-th row (1: every
+/// pixel), in the units of `CellTracer::record_work`: cells entered and
 /// `cells::TEST_WORK` per intersection test. Fails as `map` does.
+#[allow(clippy::too_many_arguments)]
 pub fn predicted_loads(
     cs: &CellStructure,
     scene: &Scene,
     width: u32,
     height: u32,
     owner: &[Vec<u16>; 2],
+    copies: Option<&Copies>,
     d: u32,
     stride: u32,
 ) -> Result<Vec<f64>> {
@@ -375,10 +397,50 @@ pub fn predicted_loads(
         scene,
         width,
         height,
-        Some((owner, &skeleton)),
+        Some((owner, &skeleton, copies)),
         stride.max(1),
     )?;
     Ok(loads(&work, owner, d))
+}
+
+/// The predicted imbalance under which `rebalance_with_copies` leaves
+/// the mapping as it is: closer than `EVEN`, since a refinement costs no
+/// walk here. (On two nodes of 8 MiB the sphereflake's copies left 1.015
+/// predicted, and node 1 busy 4-8% longer than node 0; refined, 1.0005.)
+const EVEN_WITH_COPIES: f64 = 1.005;
+
+/// The work per super cell that the pre-pass measures walking under
+/// `owner` where nodes hold `copies` of others' super cells
+/// (`machine::replicas`): a ray that reaches a copy on its node stays
+/// there, so its work there falls on that node. Where the loads it
+/// predicts are uneven (past `EVEN_WITH_COPIES`), `owner` is refined by
+/// it (`refine`),
+/// and true is returned. Fails as `map` does.
+pub fn rebalance_with_copies(
+    cs: &CellStructure,
+    scene: &Scene,
+    (width, height): (u32, u32),
+    owner: &mut [Vec<u16>; 2],
+    copies: &Copies,
+    d: u32,
+) -> Result<([Vec<f64>; 2], bool)> {
+    let skeleton = skeleton(cs, scene);
+    let stride = prepass_stride(width, height, 1 << d);
+    let (work, _) = prepass(
+        cs,
+        scene,
+        width,
+        height,
+        Some((owner, &skeleton, Some(copies))),
+        stride,
+    )?;
+    if predicted_imbalance(&work, owner, d) <= EVEN_WITH_COPIES {
+        return Ok((work, false));
+    }
+    let before = owner.clone();
+    refine(&neighbours(cs), &work, owner, d);
+    let changed = *owner != before;
+    Ok((work, changed))
 }
 
 /// The structure as a node that owns nothing holds it: every cell with

@@ -255,6 +255,8 @@ pub struct NodeReport {
     /// holds (those its cells reference).
     pub cells: u64,
     pub super_cells: u64,
+    /// Super cells of other nodes it holds copies of (`replicas`).
+    pub copies: u64,
     pub primitives: u64,
     /// Bytes of the share (cells, subtrees, primitives, mailboxes).
     pub memory_bytes: u64,

@@ -7,6 +7,7 @@
 //! * `calibrate`: this host as a topology, its link costs measured;
 //! * `routing`: e-cube routing and Gray codes;
 //! * `mapping`: which node owns which super cell (cost pre-pass, Gray codes);
+//! * `replicas`: which other nodes' super cells a node holds copies of;
 //! * `message` and `codec`: what travels, and its bytes (bincode 2);
 //! * `transport`: links as a small trait, with in-process channels;
 //! * `node`: a node's loop (tracing, routing, flow control, memory, clock);
@@ -19,6 +20,7 @@ pub mod host;
 pub mod mapping;
 pub mod message;
 pub mod node;
+pub mod replicas;
 pub mod routing;
 pub mod ticks;
 pub mod topology;
@@ -29,6 +31,7 @@ pub use host::{
     stack_bound,
 };
 pub use mapping::Mapping;
+pub use replicas::Replicas;
 pub use topology::{Topology, parse_size};
 
 /// The largest of `v` against their mean, the imbalance of per-node loads

@@ -35,7 +35,7 @@ use super::message::{
 use super::routing::{NodeId, next_dimension};
 use super::ticks::{Ticks, thread_cpu_seconds};
 use super::transport::{Link, NodeLinks};
-use crate::cells::{CellStructure, CellTracer, Region, Walk};
+use crate::cells::{CellStructure, CellTracer, REMOTE, Region, Walk};
 use crate::render::sample_offset_from;
 use crate::scene::Scene;
 use crate::trace::{CameraFrame, Film, RayJob, RayKind, Shader, Tracer};
@@ -396,10 +396,22 @@ impl<'a> Node<'a> {
             })
             .sum();
         let super_cells = share.owner.iter().flatten().filter(|&&o| o == id).count() as u64;
+        // Copies: super cells of others whose content the share holds.
+        let copies: u64 = Region::BOTH
+            .iter()
+            .map(|&r| {
+                let rc = share.cells.region(r);
+                (0..rc.supers.len() as u32)
+                    .filter(|&s| share.owner[r as usize][s as usize] != id)
+                    .filter(|&s| rc.cells_of(s).any(|k| rc.subtree[k] < REMOTE))
+                    .count() as u64
+            })
+            .sum();
         let report = NodeReport {
             node: id,
             cells,
             super_cells,
+            copies,
             primitives: share.scene.primitives.len() as u64,
             memory_bytes: memory,
             structure_bytes: share.cells.bytes() as u64,

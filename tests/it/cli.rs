@@ -746,7 +746,7 @@ fn stats_count_none_of_what_a_scene_cannot_use() {
 fn node_rows(out: &str) -> Vec<Vec<&str>> {
     out.lines()
         .map(|l| l.split_whitespace().collect::<Vec<_>>())
-        .filter(|w| w.len() == 7 && w[0].parse::<u32>().is_ok())
+        .filter(|w| w.len() == 8 && w[0].parse::<u32>().is_ok())
         .collect()
 }
 
@@ -776,7 +776,7 @@ fn inspect_prints_nodes_that_own_nothing() {
     assert_eq!(rows.len(), 32, "{out}");
     let idle: Vec<_> = rows.iter().filter(|w| w[1] == "0").collect();
     assert!(!idle.is_empty(), "{out}");
-    assert!(idle.iter().all(|w| w[6] == "0"), "{out}");
+    assert!(idle.iter().all(|w| w[7] == "0"), "{out}");
     assert!(rows.iter().all(|w| !w.contains(&"-0")), "{out}");
 }
 

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 
 use hypercast::cells::CellOptions;
 use hypercast::error::{Error, Refusal, Remedy};
-use hypercast::machine::{self, MachineOptions, Mapping, Topology};
+use hypercast::machine::{self, MachineOptions, Mapping, Replicas, Topology};
 use hypercast::render::{self, Accel, Adaptive, RenderOptions};
 use hypercast::scene::{Scene, load_scene};
 use hypercast::trace::Film;
@@ -29,8 +29,20 @@ pub fn machine(
     h: u32,
     capacity: usize,
 ) -> (Film, machine::MachineStats) {
+    machine_with(scene, d, (w, h), capacity, Replicas::Auto)
+}
+
+/// `machine` with or without copies of other nodes' super cells.
+pub fn machine_with(
+    scene: &Scene,
+    d: u32,
+    (w, h): (u32, u32),
+    capacity: usize,
+    replicas: Replicas,
+) -> (Film, machine::MachineStats) {
     let mut o = MachineOptions::new(w, h, 1);
     o.capacity = capacity;
+    o.replicas = replicas;
     let (film, stats, _) =
         machine::render(scene, &topo(d), &o, &|_| {}).unwrap_or_else(|e| panic!("d = {d}: {e}"));
     (film, stats)
@@ -72,23 +84,25 @@ fn every_dimension_gives_the_single_node_image() {
     let (one, _) = cells(&scene, w, h);
     for d in 0..=5 {
         for capacity in [machine::DEFAULT_CAPACITY, 1] {
-            let (film, stats) = machine(&scene, d, w, h, capacity);
-            check_stats(&scene, &stats);
-            let diff = film
-                .sums()
-                .iter()
-                .zip(one.sums())
-                .filter(|(a, b)| a != b)
-                .count();
-            assert_eq!(
-                diff, 0,
-                "d = {d}, capacity {capacity}: {diff} pixels differ"
-            );
-            if d > 0 {
-                assert!(stats.messages > 0 && stats.hops > 0);
-                // Shadow rays leave as leaves, and the image holds.
-                let leaves: u64 = stats.per_node.iter().map(|n| n.leaves_sent).sum();
-                assert!(leaves > 0, "d = {d}: no shadow ray went alone");
+            for replicas in [Replicas::None, Replicas::Auto] {
+                let (film, stats) = machine_with(&scene, d, (w, h), capacity, replicas);
+                check_stats(&scene, &stats);
+                let diff = film
+                    .sums()
+                    .iter()
+                    .zip(one.sums())
+                    .filter(|(a, b)| a != b)
+                    .count();
+                assert_eq!(
+                    diff, 0,
+                    "d = {d}, capacity {capacity}, {replicas:?}: {diff} pixels differ"
+                );
+                if d > 0 && replicas == Replicas::None {
+                    assert!(stats.messages > 0 && stats.hops > 0);
+                    // Shadow rays leave as leaves, and the image holds.
+                    let leaves: u64 = stats.per_node.iter().map(|n| n.leaves_sent).sum();
+                    assert!(leaves > 0, "d = {d}: no shadow ray went alone");
+                }
             }
         }
     }
@@ -161,8 +175,17 @@ fn pre_pass_error(no_shadow_cache: bool) -> f64 {
     let mut o = MachineOptions::new(w, h, 1);
     o.cells.no_shadow_cache = no_shadow_cache;
     let plan = Plan::new(&scene, &topo(d), &o).unwrap();
-    let predicted =
-        machine::mapping::predicted_loads(&plan.cells, &scene, w, h, &plan.owner, d, 1).unwrap();
+    let predicted = machine::mapping::predicted_loads(
+        &plan.cells,
+        &scene,
+        w,
+        h,
+        &plan.owner,
+        plan.copies.as_ref(),
+        d,
+        1,
+    )
+    .unwrap();
     let (_, stats, _) = machine::render(&scene, &topo(d), &o, &|_| {}).unwrap();
     assert_eq!(stats.per_node.len(), 1 << d);
     stats
@@ -345,6 +368,8 @@ fn random_scenes_on_random_dimensions_equal_one_node() {
             _ => (1, None),
         };
         let mapping = [Mapping::Balanced, Mapping::EqualArea][(mix / 252 % 2) as usize];
+        // Copies mostly (the default), the paper's plan alone a third.
+        let replicas = [Replicas::Auto, Replicas::Auto, Replicas::None][(mix / 504 % 3) as usize];
         let host = render::render_host(
             &scene,
             &RenderOptions {
@@ -362,6 +387,7 @@ fn random_scenes_on_random_dimensions_equal_one_node() {
         let mut o = MachineOptions::new(w, h, spp);
         o.capacity = capacity;
         o.mapping = mapping;
+        o.replicas = replicas;
         // The smallest of these budgets that the plan accepts (a refusal
         // is the refusal the user would get, with its numbers).
         let budgets: [u64; 5] = [24 << 10, 64 << 10, 256 << 10, 1 << 20, 4_718_592];
@@ -386,8 +412,9 @@ fn random_scenes_on_random_dimensions_equal_one_node() {
         check_stats(&scene, &stats);
         let how = format!(
             "seed {seed} ({primitives} primitives): d = {d}, capacity {capacity}, {budget} B, \
-             spp {spp}, {adaptive:?}, {}",
-            mapping.name()
+             spp {spp}, {adaptive:?}, {}, copies {}",
+            mapping.name(),
+            replicas.name()
         );
         if film.sums() != host.film.sums() {
             failures.push(format!(
@@ -785,5 +812,79 @@ fn render_spp_4_writes_the_same_image_for_d_0_3_5() {
     for d in ["0", "3", "5"] {
         let image = render_to(&format!("d{d}.exr"), &["--dim", d]);
         assert!(image == roth, "--dim {d} differs from --accel roth");
+    }
+}
+
+/// Copies of other nodes' super cells (`machine::replicas`) change where
+/// rays are traced, not the image: on two nodes with room for everything,
+/// no ray leaves its node; on eight, fewer paths cross than without.
+#[test]
+fn copies_change_where_rays_go_not_the_image() {
+    // Its cost model makes enough super cells for two nodes (none added
+    // for the balance), so twice the single node's structure is what two
+    // whole copies take; and its glass and mirrors send rays everywhere.
+    let scene = load_scene(&repo("scenes/glass.ron")).unwrap();
+    let (w, h) = (96, 72);
+    let (one, _) = cells(&scene, w, h);
+    for d in [1, 3] {
+        let run = |r| machine_with(&scene, d, (w, h), machine::DEFAULT_CAPACITY, r);
+        let ((plain_film, plain), (with_film, with)) = (run(Replicas::None), run(Replicas::Auto));
+        check_stats(&scene, &plain);
+        check_stats(&scene, &with);
+        assert_eq!(plain_film.sums(), one.sums(), "d = {d}, no copies");
+        assert_eq!(with_film.sums(), one.sums(), "d = {d}, copies");
+        let copies = |s: &machine::MachineStats| s.per_node.iter().map(|n| n.copies).sum::<u64>();
+        assert_eq!(copies(&plain), 0);
+        assert!(copies(&with) > 0, "d = {d}: nothing copied");
+        assert!(
+            with.hops < plain.hops,
+            "d = {d}: {} hops with copies, {} without",
+            with.hops,
+            plain.hops
+        );
+        if d == 1 {
+            assert_eq!(with.hops, 0, "two nodes that hold everything send no ray");
+        }
+    }
+}
+
+/// Copies never take the structure held over all nodes past twice the
+/// single node's (issue 4's bound; where the nodes' own shares are
+/// already past it, they add nothing), and leave every node at least
+/// `KEEP_WINDOW` of the window its own share would give it (a refined
+/// owner may move that a little).
+#[test]
+fn copies_keep_within_twice_the_single_structure_and_half_the_window() {
+    use hypercast::cells::CellStructure;
+    use hypercast::machine::host::Plan;
+    let (w, h) = (96, 72);
+    for path in bundled_scenes() {
+        let scene = load_scene(&path).unwrap();
+        let single = {
+            let cs = CellStructure::build(&scene, w, h, CellOptions::default()).unwrap();
+            cs.restrict(&scene, &|_, _| true).0.bytes() as u64
+        };
+        for d in 1..=5 {
+            let mut o = MachineOptions::new(w, h, 1);
+            o.replicas = Replicas::None;
+            let plain = Plan::new(&scene, &topo(d), &o).unwrap();
+            o.replicas = Replicas::Auto;
+            let with = Plan::new(&scene, &topo(d), &o).unwrap();
+            let held = |p: &Plan| p.shares.iter().map(|(c, _)| c.bytes() as u64).sum::<u64>();
+            let how = format!("{}, d = {d}", path.display());
+            assert!(
+                held(&with) <= (2 * single).max(held(&plain)),
+                "{how}: {} held with copies, {} without, single {single}",
+                held(&with),
+                held(&plain)
+            );
+            assert!(plain.replicas.iter().all(|&c| c == 0), "{how}");
+            assert!(
+                with.window > 0 && 2 * with.window + 2 >= plain.window,
+                "{how}: window {} with copies, {} without",
+                with.window,
+                plain.window
+            );
+        }
     }
 }

@@ -1,0 +1,339 @@
+//! Replicas: copies of other nodes' super cells that a node holds in the
+//! memory its own share leaves free, so that the rays it would send to
+//! their owners are traced where they are. The paper's plan spreads the
+//! cell structure because one node cannot hold it (section 10); where a
+//! node can hold more than its part, a ray that reaches a cell it holds a
+//! copy of goes on without a message, and the node's time goes to tracing
+//! instead of encoding, sending and decoding paths. (Later distributed
+//! ray tracers, Badouel, Bouatouch and Priol's on the iPSC/2 among them,
+//! cached remote scene data on each node for the same reason; here the
+//! copies are chosen before the render and arrive in the load message,
+//! so a node still knows only what messages told it.)
+//!
+//! Which super cells a node copies (`choose`): those its rays moved to
+//! most often in the mapping's last pre-pass (`mapping::map`'s moves),
+//! then any other with content, as long as
+//!
+//! * the structure over all nodes stays within `REPLICA_CAP` times the
+//!   single node's (issue 4's bound on what distribution may cost in
+//!   memory), each node taking an equal part of what that leaves; and
+//! * the node keeps room for at least `KEEP_WINDOW` of the window of
+//!   primary paths its own share leaves (`host::Plan`): a node whose rays
+//!   stay home needs fewer in flight, but not none.
+//!
+//! Copies move work (the rays a node would have sent, it traces itself),
+//! so the pre-pass is walked again with them, and where it finds the
+//! loads uneven the mapping is refined and the copies chosen again for it
+//! (`place`). A super cell's pixels stay its owner's. The image is the
+//! same with and without copies (a cell's content is the same wherever
+//! it is walked), and `--replicas none` gives the paper's plan alone.
+
+use std::collections::BTreeMap;
+
+use crate::cells::share::CellHulls;
+use crate::cells::{CellStructure, Copies, Move, Region};
+use crate::scene::Scene;
+
+/// Whether nodes hold copies of other nodes' super cells.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum Replicas {
+    /// Where memory allows, by the pre-pass's moves (default).
+    #[default]
+    Auto,
+    /// None: every ray that reaches another node's cell goes there.
+    None,
+}
+
+impl Replicas {
+    pub fn name(self) -> &'static str {
+        match self {
+            Replicas::Auto => "auto",
+            Replicas::None => "none",
+        }
+    }
+}
+
+/// The most the structure held over all nodes may be, copies included,
+/// against the whole structure (what one node holding all of it holds):
+/// issue 4's bound on the sphereflake at d = 5, kept for every scene and
+/// dimension. At d = 1 it lets each of the two nodes hold everything.
+pub const REPLICA_CAP: f64 = 2.0;
+
+/// The share of its window (the primary paths in flight it would have
+/// without copies) that a node keeps when copies take memory.
+pub const KEEP_WINDOW: f64 = 0.5;
+
+/// What a node may copy, most wanted first: the super cells with content
+/// that other nodes own, by the moves of its rays to them in `moves` (the
+/// pre-pass's), most first; ties, and super cells no sampled ray reached,
+/// in index order. Super cells as (region index, super cell).
+pub fn wanted(
+    cells: &CellStructure,
+    owner: &[Vec<u16>; 2],
+    moves: &[Move],
+    nodes: usize,
+) -> Vec<Vec<(usize, u32)>> {
+    let mut tally: Vec<BTreeMap<(usize, u32), u64>> = vec![BTreeMap::new(); nodes];
+    for m in moves {
+        if let Some(t) = tally.get_mut(m.from as usize) {
+            *t.entry((m.region as usize, m.super_cell)).or_insert(0) += 1;
+        }
+    }
+    let with_content: Vec<(usize, u32)> = Region::BOTH
+        .iter()
+        .flat_map(|&r| {
+            let rc = cells.region(r);
+            (0..rc.supers.len() as u32)
+                .filter(move |&s| !rc.super_cell_is_empty(s))
+                .map(move |s| (r as usize, s))
+        })
+        .collect();
+    (0..nodes)
+        .map(|i| {
+            let mut order: Vec<((usize, u32), u64)> = with_content
+                .iter()
+                .filter(|&&(r, s)| owner[r][s as usize] as usize != i)
+                .map(|&c| (c, tally[i].get(&c).copied().unwrap_or(0)))
+                .collect();
+            order.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+            order.into_iter().map(|(c, _)| c).collect()
+        })
+        .collect()
+}
+
+/// Node `node`'s share with copies of a prefix of `wanted` (its own
+/// share is `own`), as long as `slack` of it stays at or above zero (the
+/// least room its limits leave, in bytes: the module header's; negative
+/// past them), and that prefix's length: about the longest that fits,
+/// found by interpolating the slack between a prefix that fits and one
+/// that does not (all of `wanted`, whose share's size is `all`), a
+/// restriction a try (0.2-2 ms each on the sphereflake). None: its own.
+#[allow(clippy::too_many_arguments)]
+pub fn share_with_copies(
+    m: &Machine,
+    owner: &[Vec<u16>; 2],
+    node: usize,
+    wanted: &[(usize, u32)],
+    own: &NodeShare,
+    all: Size,
+    slack: &dyn Fn(Size) -> f64,
+) -> (Option<NodeShare>, usize) {
+    let share = |k: usize| {
+        let mut held = Region::BOTH.map(|r| vec![false; m.cells.region(r).supers.len()]);
+        for &(r, s) in &wanted[..k] {
+            held[r][s as usize] = true;
+        }
+        m.cells.restrict_with(
+            m.scene,
+            &|r, s| owner[r as usize][s as usize] as usize == node || held[r as usize][s as usize],
+            m.hulls,
+        )
+    };
+    // `lo` fits, `hi` does not; the slack falls from the one to the other
+    // about evenly per super cell copied.
+    let (mut lo, mut lo_slack, mut best) = (0, slack(Size::of(own)), None);
+    let (mut hi, mut hi_slack) = (wanted.len(), slack(all));
+    for _ in 0..SEARCH_TRIES {
+        if hi - lo <= 1 || lo_slack < 0.0 || hi_slack >= 0.0 {
+            break;
+        }
+        let f = lo_slack / (lo_slack - hi_slack);
+        let guess = lo + ((hi - lo) as f64 * f).floor() as usize;
+        let k = guess.clamp(lo + 1, hi - 1);
+        let s = share(k);
+        let sl = slack(Size::of(&s));
+        if sl >= 0.0 {
+            (lo, lo_slack, best) = (k, sl, Some(s));
+        } else {
+            (hi, hi_slack) = (k, sl);
+        }
+    }
+    (best, lo)
+}
+
+/// Restrictions `share_with_copies` tries at most: the prefix it keeps
+/// may then be a little shorter than the longest.
+const SEARCH_TRIES: usize = 5;
+
+/// A share's bytes on its node (`node::share_bytes`) and its structure's
+/// (`CellStructure::bytes`).
+#[derive(Clone, Copy, Debug)]
+pub struct Size {
+    pub node: u64,
+    pub structure: u64,
+}
+
+impl Size {
+    pub fn of((c, sc): &NodeShare) -> Size {
+        Size {
+            node: crate::machine::node::share_bytes(c, sc),
+            structure: c.bytes() as u64,
+        }
+    }
+}
+
+/// A node's share: its structure and its scene (`restrict_with`).
+pub type NodeShare = (CellStructure, Scene);
+
+/// What copies are placed for: the structure and scene, every cell's
+/// hull (`cell_hulls`), the image size, the dimension, the share of a node
+/// that holds the whole structure (`restrict_with` of every super cell),
+/// and the bytes of the structure a single node builds (`CellStructure::
+/// bytes` of it whole), against which `REPLICA_CAP` counts.
+pub struct Machine<'a> {
+    pub cells: &'a CellStructure,
+    pub scene: &'a Scene,
+    pub hulls: &'a CellHulls,
+    pub size: (u32, u32),
+    pub d: u32,
+    pub whole: &'a NodeShare,
+    pub single: u64,
+}
+
+/// What `place` gives.
+pub struct Placed {
+    /// The owner of every super cell: the mapping's, or refined where the
+    /// copies made the loads uneven (`mapping::rebalance_with_copies`).
+    pub owner: [Vec<u16>; 2],
+    /// Per node, its share with its copies.
+    pub shares: Vec<NodeShare>,
+    /// Per node, how many super cells it copies.
+    pub copied: Vec<usize>,
+    /// Per super cell, the nodes that copy it.
+    pub copies: Copies,
+    /// The work per super cell as the pre-pass measured it with the
+    /// copies (under the owner before any refinement), if any was made.
+    pub work: Option<[Vec<f64>; 2]>,
+}
+
+/// Copies for every node of `m` (`choose`), from the mapping's `owner`,
+/// the nodes' own `shares` under it and the pre-pass's `moves`; then the
+/// pre-pass walked with them, and, where that finds the loads uneven, the
+/// owner refined and the copies chosen again for it. (Copies move work:
+/// the rays a node would have sent, it traces itself. On the sphereflake
+/// at d = 5 they took the busy imbalance from 1.13 to 1.25 before this.)
+/// `own_shares(owner)` restricts the structure to each node's own super
+/// cells; `memory(own)` is what a node's share may take with copies.
+/// Fails only if the OS refuses a pre-pass thread.
+pub fn place(
+    m: &Machine,
+    (owner, shares): ([Vec<u16>; 2], Vec<NodeShare>),
+    moves: &[Move],
+    own_shares: &dyn Fn(&[Vec<u16>; 2]) -> Vec<NodeShare>,
+    memory: &dyn Fn(&[NodeShare]) -> u64,
+) -> crate::error::Result<Placed> {
+    let limit = memory(&shares);
+    let held = |shares: &[NodeShare]| shares.iter().map(|(c, _)| c.bytes() as u64).sum::<u64>();
+    // What the structure over all nodes may come to: the cap, or what
+    // the mapping's own shares hold already where that is more.
+    let bound = held(&shares).max((REPLICA_CAP * m.single as f64) as u64);
+    let (with, copies, copied) = choose(m, &owner, moves, shares, limit);
+    if copied.iter().all(|&k| k == 0) {
+        return Ok(Placed {
+            owner,
+            shares: with,
+            copied,
+            copies,
+            work: None,
+        });
+    }
+    let mut refined = owner.clone();
+    let (work, changed) = crate::machine::mapping::rebalance_with_copies(
+        m.cells,
+        m.scene,
+        m.size,
+        &mut refined,
+        &copies,
+        m.d,
+    )?;
+    if changed {
+        let own = own_shares(&refined);
+        let limit = memory(&own);
+        // Refined, a node may own more than fits beside a window, or the
+        // nodes more than the bound: then the mapping's owner stays.
+        if own
+            .iter()
+            .all(|(c, s)| crate::machine::node::share_bytes(c, s) <= limit)
+        {
+            let (with, copies, copied) = choose(m, &refined, moves, own, limit);
+            if held(&with) <= bound {
+                return Ok(Placed {
+                    owner: refined,
+                    shares: with,
+                    copied,
+                    copies,
+                    work: Some(work),
+                });
+            }
+        }
+        // The copies unbalance the loads, and the mapping cannot be
+        // refined for them: none (on 32 nodes, `csg_basics.ron` at
+        // 320x240 predicted 1.35 with them, under the bound, and its
+        // refinement went past it).
+        let n = copied.len();
+        return Ok(Placed {
+            shares: own_shares(&owner),
+            owner,
+            copied: vec![0; n],
+            copies: Region::BOTH.map(|r| vec![Vec::new(); m.cells.region(r).supers.len()]),
+            work: None,
+        });
+    }
+    Ok(Placed {
+        owner,
+        shares: with,
+        copied,
+        copies,
+        work: Some(work),
+    })
+}
+
+/// Every node's share with copies, which copies each holds, and how
+/// many. A node that copies every super cell it wants holds the whole
+/// structure (`Machine::whole`), so what each would add is known before
+/// any restriction: the room `REPLICA_CAP` leaves over all nodes goes
+/// first, whole, to the nodes that want least (each within an equal part
+/// of what is left), and the others share the rest equally and copy what
+/// fits of it by `share_with_copies`. No share passes `memory` bytes
+/// (`node::share_bytes`).
+fn choose(
+    m: &Machine,
+    owner: &[Vec<u16>; 2],
+    moves: &[Move],
+    mut shares: Vec<NodeShare>,
+    memory: u64,
+) -> (Vec<NodeShare>, Copies, Vec<usize>) {
+    let n = shares.len();
+    let wanted = wanted(m.cells, owner, moves, n);
+    let own: Vec<Size> = shares.iter().map(Size::of).collect();
+    let all = Size::of(m.whole);
+    let held: u64 = own.iter().map(|s| s.structure).sum();
+    let mut room = ((REPLICA_CAP * m.single as f64) as u64).saturating_sub(held);
+    let mut copied = vec![0; n];
+    // The nodes that want copies, least wanting first.
+    let mut order: Vec<usize> = (0..n).filter(|&i| !wanted[i].is_empty()).collect();
+    order.sort_by_key(|&i| (all.structure.saturating_sub(own[i].structure), i));
+    for (done, &i) in order.iter().enumerate() {
+        let each = room / (order.len() - done) as u64;
+        let limit = own[i].structure + each;
+        let slack =
+            |s: Size| (memory as f64 - s.node as f64).min(limit as f64 - s.structure as f64);
+        let (share, k) = if slack(all) >= 0.0 {
+            (Some(m.whole.clone()), wanted[i].len())
+        } else {
+            share_with_copies(m, owner, i, &wanted[i], &shares[i], all, &slack)
+        };
+        if let Some(share) = share {
+            shares[i] = share;
+        }
+        copied[i] = k;
+        room = room.saturating_sub(shares[i].0.bytes() as u64 - own[i].structure);
+    }
+    let mut copies: Copies = Region::BOTH.map(|r| vec![Vec::new(); m.cells.region(r).supers.len()]);
+    for (i, w) in wanted.iter().enumerate() {
+        for &(r, s) in &w[..copied[i]] {
+            copies[r][s as usize].push(i as u16);
+        }
+    }
+    (shares, copies, copied)
+}
