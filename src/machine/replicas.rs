@@ -397,7 +397,10 @@ fn choose(
             shares[i] = share;
         }
         copied[i] = k;
-        room = room.saturating_sub(shares[i].0.bytes() as u64 - own[i].structure);
+        // (A copy may leave a structure smaller: a cell held adds its
+        // subtree, which the node may hold already, and drops its hull.)
+        let added = (shares[i].0.bytes() as u64).saturating_sub(own[i].structure);
+        room = room.saturating_sub(added);
     }
     let mut copies: Copies = Region::BOTH.map(|r| vec![Vec::new(); m.cells.region(r).supers.len()]);
     for (i, w) in wanted.iter().enumerate() {
