@@ -98,6 +98,8 @@ pub struct MachineStats {
     pub hops: u64,
     pub window: u32,
     pub mapping: Option<Mapping>,
+    /// Whether nodes held copies of other nodes' super cells (how many:
+    /// `NodeReport::copies`).
     pub replicas: Option<Replicas>,
     /// Largest node busy time against the mean, measured and as the
     /// pre-pass predicted it.
