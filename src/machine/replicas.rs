@@ -16,7 +16,8 @@
 //!
 //! * the structure over all nodes stays within `REPLICA_CAP` times the
 //!   single node's (issue 4's bound on what distribution may cost in
-//!   memory), each node taking an equal part of what that leaves; and
+//!   memory), the nodes that want least served first, each within an
+//!   equal part of what is left; and
 //! * the node keeps room for at least `KEEP_WINDOW` of the window of
 //!   primary paths its own share leaves (`host::Plan`): a node whose rays
 //!   stay home needs fewer in flight, but not none.
@@ -24,7 +25,7 @@
 //! Copies move work (the rays a node would have sent, it traces itself),
 //! so the pre-pass is walked again with them, and where it finds the
 //! loads uneven the mapping is refined and the copies chosen again for it
-//! (`place`). A super cell's pixels stay its owner's. The image is the
+//! (`place`; where the refined mapping would pass the bound, no copies). A super cell's pixels stay its owner's. The image is the
 //! same with and without copies (a cell's content is the same wherever
 //! it is walked), and `--replicas none` gives the paper's plan alone.
 
