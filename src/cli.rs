@@ -861,12 +861,12 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
         println!(
             "{i:>4}  {:>11}  {:>6}  {cells:>5}  {:>10}  {:>10.3}  {:>13.3}  {work:>14.0}",
             owned.len(),
-            plan.replicas[i],
+            plan.copies_held(i),
             local.primitives.len(),
             plan.share_bytes[i] as f64 / 1048576.0,
             share.bytes() as f64 / 1048576.0
         );
-        nodes_json.push(json!({"node": i, "super_cells": owned.len(), "copies": plan.replicas[i], "cells": cells, "primitives": local.primitives.len(), "memory_bytes": plan.share_bytes[i], "structure_bytes": share.bytes(), "estimated_work": work}));
+        nodes_json.push(json!({"node": i, "super_cells": owned.len(), "copies": plan.copies_held(i), "cells": cells, "primitives": local.primitives.len(), "memory_bytes": plan.share_bytes[i], "structure_bytes": share.bytes(), "estimated_work": work}));
     }
     let held: usize = plan.shares.iter().map(|(c, _)| c.bytes()).sum();
     println!(

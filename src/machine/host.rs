@@ -271,9 +271,8 @@ pub struct Plan {
     /// The times the rays of the mapping's pre-pass, walked under the
     /// mapping, moved between nodes (`mapping::map`), without replicas.
     pub crossings: u64,
-    /// Per node: the super cells it holds copies of (`replicas`).
-    pub replicas: Vec<usize>,
-    /// Per super cell, the nodes that hold a copy of it, if any do.
+    /// Per super cell, the nodes that hold a copy of it (`replicas`), if
+    /// any do.
     pub copies: Option<crate::cells::Copies>,
 }
 
@@ -376,6 +375,16 @@ impl Plan {
             }
         }
         Ok(best)
+    }
+
+    /// How many super cells of others node `node` holds copies of.
+    pub fn copies_held(&self, node: usize) -> usize {
+        self.copies.as_ref().map_or(0, |c| {
+            c.iter()
+                .flatten()
+                .filter(|holders| holders.contains(&(node as u16)))
+                .count()
+        })
     }
 
     /// The bytes of the largest share.
@@ -482,7 +491,6 @@ impl Plan {
             (room / per_path).min(MAX_WINDOW as u64) as u32
         };
         let mut window = window_for(&shares);
-        let mut replicas = vec![0; n];
         let mut copies = None;
         if opts.replicas == Replicas::Auto && n > 1 && window > 0 && !moves.is_empty() {
             // What a node's share may take with copies: all but the room
@@ -521,9 +529,9 @@ impl Plan {
                 &own_shares,
                 &memory,
             )?;
-            (owner, shares, replicas) = (placed.owner, placed.shares, placed.copied);
-            if let Some(measured) = placed.work {
-                (work, copies) = (measured, Some(placed.copies));
+            (owner, shares) = (placed.owner, placed.shares);
+            if let Some((held, measured)) = placed.copies {
+                (copies, work) = (Some(held), measured);
             }
             window = window_for(&shares);
         }
@@ -547,7 +555,6 @@ impl Plan {
             rebuilds: round,
             subdivision: sub,
             crossings: moves.len() as u64,
-            replicas,
             copies,
         })
     }

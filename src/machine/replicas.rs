@@ -83,25 +83,14 @@ pub fn wanted(
             *t.entry((m.region as usize, m.super_cell)).or_insert(0) += 1;
         }
     }
-    // Super cells with content, and the leaves of their cells' subtrees
-    // (a copy's size, roughly).
+    // Super cells with content, and what copying each costs.
     let with_content: Vec<((usize, u32), u64)> = Region::BOTH
         .iter()
         .flat_map(|&r| {
             let rc = cells.region(r);
             (0..rc.supers.len() as u32)
                 .filter(move |&s| !rc.super_cell_is_empty(s))
-                .map(move |s| {
-                    let leaves: u64 = rc
-                        .cells_of(s)
-                        .filter(|&k| rc.subtree[k] < crate::cells::REMOTE)
-                        .map(|k| {
-                            let [a, b] = cells.leaf_span[rc.subtree[k] as usize];
-                            u64::from(b - a)
-                        })
-                        .sum();
-                    ((r as usize, s), leaves)
-                })
+                .map(move |s| ((r as usize, s), leaves_in(cells, r, s)))
         })
         .collect();
     (0..nodes)
@@ -118,6 +107,20 @@ pub fn wanted(
             order.into_iter().map(|(c, _)| c).collect()
         })
         .collect()
+}
+
+/// The leaves of the subtrees of super cell `s`'s cells: what a copy of
+/// it costs, roughly.
+fn leaves_in(cells: &CellStructure, r: Region, s: u32) -> u64 {
+    let rc = cells.region(r);
+    rc.cells_of(s)
+        .map(|k| rc.subtree[k])
+        .filter(|&t| t < crate::cells::REMOTE)
+        .map(|t| {
+            let [a, b] = cells.leaf_span[t as usize];
+            u64::from(b - a)
+        })
+        .sum()
 }
 
 /// Node `node`'s share with copies of a prefix of `wanted` (its own
@@ -268,13 +271,10 @@ pub struct Placed {
     pub owner: [Vec<u16>; 2],
     /// Per node, its share with its copies.
     pub shares: Vec<NodeShare>,
-    /// Per node, how many super cells it copies.
-    pub copied: Vec<usize>,
-    /// Per super cell, the nodes that copy it.
-    pub copies: Copies,
-    /// The work per super cell as the pre-pass measured it with the
-    /// copies (under the owner before any refinement), if any was made.
-    pub work: Option<[Vec<f64>; 2]>,
+    /// Where any node copies anything: per super cell, the nodes that
+    /// copy it, and the work per super cell as the pre-pass measured it
+    /// with them (under the owner before any refinement).
+    pub copies: Option<(Copies, [Vec<f64>; 2])>,
 }
 
 /// Copies for every node of `m` (`choose`), from the mapping's `owner`,
@@ -298,14 +298,12 @@ pub fn place(
     // What the structure over all nodes may come to: the cap, or what
     // the mapping's own shares hold already where that is more.
     let bound = held(&shares).max((REPLICA_CAP * m.single as f64) as u64);
-    let (with, copies, copied) = choose(m, &owner, moves, shares, limit);
-    if copied.iter().all(|&k| k == 0) {
+    let (with, copies) = choose(m, &owner, moves, shares, limit);
+    if copies.iter().flatten().all(Vec::is_empty) {
         return Ok(Placed {
             owner,
             shares: with,
-            copied,
-            copies,
-            work: None,
+            copies: None,
         });
     }
     let mut refined = owner.clone();
@@ -326,14 +324,12 @@ pub fn place(
             .iter()
             .all(|(c, s)| crate::machine::node::share_bytes(c, s) <= limit)
         {
-            let (with, copies, copied) = choose(m, &refined, moves, own, limit);
+            let (with, copies) = choose(m, &refined, moves, own, limit);
             if held(&with) <= bound {
                 return Ok(Placed {
                     owner: refined,
                     shares: with,
-                    copied,
-                    copies,
-                    work: Some(work),
+                    copies: Some((copies, work)),
                 });
             }
         }
@@ -341,26 +337,20 @@ pub fn place(
         // refined for them: none (on 32 nodes, `csg_basics.ron` at
         // 320x240 predicted 1.35 with them, under the bound, and its
         // refinement went past it).
-        let n = copied.len();
         return Ok(Placed {
             shares: own_shares(&owner),
             owner,
-            copied: vec![0; n],
-            copies: Region::BOTH.map(|r| vec![Vec::new(); m.cells.region(r).supers.len()]),
-            work: None,
+            copies: None,
         });
     }
     Ok(Placed {
         owner,
         shares: with,
-        copied,
-        copies,
-        work: Some(work),
+        copies: Some((copies, work)),
     })
 }
 
-/// Every node's share with copies, which copies each holds, and how
-/// many. A node that copies every super cell it wants holds the whole
+/// Every node's share with copies, and which copies each holds. A node that copies every super cell it wants holds the whole
 /// structure (`Machine::whole`), so what each would add is known before
 /// any restriction: the room `REPLICA_CAP` leaves over all nodes goes
 /// first, whole, to the nodes that want least (each within an equal part
@@ -373,7 +363,7 @@ fn choose(
     moves: &[Move],
     mut shares: Vec<NodeShare>,
     memory: u64,
-) -> (Vec<NodeShare>, Copies, Vec<usize>) {
+) -> (Vec<NodeShare>, Copies) {
     let n = shares.len();
     let wanted = wanted(m.cells, owner, moves, n);
     let own: Vec<Size> = shares.iter().map(Size::of).collect();
@@ -409,7 +399,7 @@ fn choose(
             copies[r][s as usize].push(i as u16);
         }
     }
-    (shares, copies, copied)
+    (shares, copies)
 }
 
 #[cfg(test)]
@@ -487,15 +477,7 @@ mod tests {
         // Largest first: what a copy adds falls along the list, the case
         // where interpolating creeps.
         let mut wanted = wanted(&cells, &owner, &[], 2);
-        let leaves = |&(r, s): &(usize, u32)| {
-            let rc = cells.region(Region::BOTH[r]);
-            rc.cells_of(s)
-                .map(|k| rc.subtree[k])
-                .filter(|&t| t < crate::cells::REMOTE)
-                .map(|t| cells.leaf_span[t as usize][1] - cells.leaf_span[t as usize][0])
-                .sum::<u32>()
-        };
-        wanted[0].sort_by_key(|c| std::cmp::Reverse(leaves(c)));
+        wanted[0].sort_by_key(|&(r, s)| std::cmp::Reverse(leaves_in(&cells, Region::BOTH[r], s)));
         let own = cells.restrict_with(&scene, &|r, s| owner[r as usize][s as usize] == 0, &hulls);
         let sizes: Vec<Size> = (0..=wanted[0].len())
             .map(|k| {
