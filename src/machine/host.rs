@@ -59,6 +59,10 @@ pub struct MachineOptions {
     pub capacity: usize,
     /// Test-only fault injection: node, and the paths it processes first.
     pub fail: Option<(u16, u64)>,
+    /// Test-only: node, and host seconds of CPU its emulation burns each
+    /// time it sends (a gap between its slices long enough to pass for a
+    /// wait, that was computing: `node::settle`).
+    pub stall: Option<(u16, f64)>,
 }
 
 impl MachineOptions {
@@ -72,6 +76,7 @@ impl MachineOptions {
             replicas: Replicas::default(),
             capacity: DEFAULT_CAPACITY,
             fail: None,
+            stall: None,
         }
     }
 }
@@ -767,6 +772,7 @@ fn run_pass(
                 link: model,
                 lag_slices,
                 fail_after: opts.fail.filter(|f| f.0 as usize == i).map(|f| f.1),
+                stall_on_send: opts.stall.filter(|f| f.0 as usize == i).map(|f| f.1),
             };
             if let Err(e) = run.send(&mut host, i as u16, &ToNode::Load(Box::new(share))) {
                 loaded = Err(e);

@@ -115,6 +115,8 @@ pub struct Share {
     pub lag_slices: f64,
     /// Test-only fault injection: fail after this many paths processed.
     pub fail_after: Option<u64>,
+    /// Test-only: host seconds of CPU to burn after each send.
+    pub stall_on_send: Option<f64>,
 }
 
 /// The topology's cost model of computing and communicating.
