@@ -669,6 +669,9 @@ impl<'a> Node<'a> {
             let worked_now = self.work_a_little();
             let (t_mark, excluded) = self.unit.take().ok_or("a unit's start vanished")?;
             estimated += self.unit_charged;
+            // What the unit computed before its sends (`catch_up`), in
+            // host seconds.
+            host_seconds += self.unit_charged * speed;
             if !worked_now? {
                 // Finding nothing to do is not work: the modelled node
                 // idles. (Counted, its CPU time came out as busy with no
