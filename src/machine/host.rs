@@ -414,6 +414,7 @@ impl Plan {
             } else {
                 0
             },
+            force_from_root: opts.replicas == Replicas::None,
             ..opts.cells
         };
         let (w, h) = (opts.width, opts.height);

@@ -1794,6 +1794,39 @@ fn forced_super_cells_are_there_and_change_no_pixel() {
     assert_eq!(roth.sums(), film.sums());
 }
 
+/// Extra super cells are forced only where the cost model alone makes
+/// fewer than asked, unless `force_from_root` (the machine's plan without
+/// copies) forces them from the BSP's first level on: the sphereflake's
+/// cost model makes hundreds, so 64 cost no forced split, except from the
+/// root. Either way the image stays Roth's.
+#[test]
+fn super_cells_are_forced_from_the_root_only_when_asked() {
+    let scene =
+        hypercast::scene::load_scene(&crate::util::repo("scenes/sphereflake4.nff")).unwrap();
+    let opts = options(64, 64);
+    let (roth, _) = render_roth(&scene, &opts, &|_| {});
+    for force_from_root in [false, true] {
+        let o = CellOptions {
+            min_super_cells: 64,
+            force_from_root,
+            ..Default::default()
+        };
+        let (film, _, cs) = render_cells(&scene, &opts, o, &|_| {});
+        assert!(cs.region(Region::Front).supers.len() >= 64);
+        assert_eq!(
+            cs.stats.forced_splits > 0,
+            force_from_root,
+            "{} forced splits",
+            cs.stats.forced_splits
+        );
+        assert_eq!(
+            roth.sums(),
+            film.sums(),
+            "force_from_root {force_from_root}"
+        );
+    }
+}
+
 /// Which lights the shadow shortcuts may use (`ShadowFacts::clear_lights`):
 /// a light in the hollow of a shell (a sphere less a smaller one) or outside
 /// everything is outside the solid; one in the shell's material, or on its
