@@ -41,7 +41,9 @@ pub enum Replicas {
     /// Where memory allows, by the pre-pass's moves (default).
     #[default]
     Auto,
-    /// None: every ray that reaches another node's cell goes there.
+    /// None: every ray that reaches another node's cell goes there (the
+    /// paper's plan alone; the super cells the mapping asks for are cut
+    /// from the BSP's first level on, `CellOptions::force_from_root`).
     None,
 }
 
