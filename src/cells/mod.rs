@@ -426,13 +426,13 @@ impl CellStructure {
                 0
             };
             // Forced splits only where the cost model alone makes fewer
-            // super cells than asked (unless `force_from_root`): forced
-            // from the start, the first
-            // levels of the BSP (when only a few regions exist) split
-            // where it would not pay, even for a scene that makes plenty
-            // (the sphereflake of level 4 gained 2 super cells on 492 at
-            // d = 1, and the host then had to build the single node's
-            // structure too, to bound its copies: `machine::replicas`).
+            // super cells than asked, unless `force_from_root`: forced
+            // from the start, the first levels of the BSP (when only a
+            // few regions exist) split where it would not pay, even for a
+            // scene that makes plenty (the sphereflake of level 4 gained
+            // 2 super cells on 492 at d = 1, and the host then had to
+            // build the single node's structure too, to bound its copies:
+            // `machine::replicas`).
             let partition_with = |min_leaves| {
                 bsp::partition_in(
                     &rects,
@@ -444,7 +444,7 @@ impl CellStructure {
                 )
             };
             let mut partition = partition_with(if opts.force_from_root { min_leaves } else { 0 });
-            if partition.leaves.len() < min_leaves {
+            if !opts.force_from_root && partition.leaves.len() < min_leaves {
                 partition = partition_with(min_leaves);
             }
             splits += partition.splits;

@@ -1366,6 +1366,7 @@ impl<'a> Node<'a> {
                 Err(c) => return Err(format!("link {:?} closed", c.0)),
             }
         }
+        // Test-only (`MachineOptions::stall`).
         if let Some(stall) = self.share.stall_on_send {
             let t0 = Ticks::now();
             while t0.elapsed() < stall {
