@@ -92,6 +92,11 @@ pub struct EfficiencyFactors {
     /// waiting (for paths in transit, for credit, for the bounded lag) and
     /// idling at the end while the slowest node finished.
     pub utilisation: f64,
+    /// The share of that node time spent waiting: for paths in transit,
+    /// for credit, and at the end. Not a factor of the efficiency: the
+    /// rest of the node time, `1 - utilisation - waiting`, is the link
+    /// model's sending (`message_overhead` and bytes over bandwidth).
+    pub waiting: f64,
 }
 
 impl EfficiencyFactors {
@@ -104,6 +109,7 @@ impl EfficiencyFactors {
             work_ratio: w / w0,
             cost_ratio: (busy(run) / w) / (busy(base) / w0),
             utilisation: utilisation(run, speed),
+            waiting: waiting(run),
         }
     }
 }
@@ -119,6 +125,13 @@ fn counted_work(n: &NodeReport) -> f64 {
 /// spent computing (`EfficiencyFactors::utilisation`).
 fn utilisation(r: &MachineStats, speed: f64) -> f64 {
     busy(r) / speed / (r.per_node.len() as f64 * r.virtual_seconds)
+}
+
+/// The share of a run's node time its nodes spent waiting
+/// (`EfficiencyFactors::waiting`).
+fn waiting(r: &MachineStats) -> f64 {
+    let waited: f64 = r.per_node.iter().map(|n| n.waiting_seconds).sum();
+    waited / (r.per_node.len() as f64 * r.virtual_seconds)
 }
 
 /// The host CPU seconds all of a run's nodes spent computing.
@@ -311,6 +324,7 @@ pub fn measure(
             work_ratio: factor(|f| f.work_ratio),
             cost_ratio: factor(|f| f.cost_ratio),
             utilisation: factor(|f| f.utilisation),
+            waiting: factor(|f| f.waiting),
         };
         let nodes = 1usize << d;
         let scale = nodes as f64 / (1usize << dims[0]) as f64;
@@ -352,7 +366,7 @@ pub fn measure(
     Ok(rows)
 }
 
-const HEADER: [&str; 27] = [
+const HEADER: [&str; 28] = [
     "dimension",
     "nodes",
     "wall_seconds",
@@ -380,9 +394,10 @@ const HEADER: [&str; 27] = [
     "work_ratio",
     "cost_ratio",
     "utilisation",
+    "waiting",
 ];
 
-fn fields(r: &ScaleRow) -> [String; 27] {
+fn fields(r: &ScaleRow) -> [String; 28] {
     [
         r.dimension.to_string(),
         r.nodes.to_string(),
@@ -414,6 +429,7 @@ fn fields(r: &ScaleRow) -> [String; 27] {
         format!("{:.3}", r.factors.work_ratio),
         format!("{:.3}", r.factors.cost_ratio),
         format!("{:.3}", r.factors.utilisation),
+        format!("{:.3}", r.factors.waiting),
     ]
 }
 
@@ -723,6 +739,11 @@ mod tests {
         }
     }
 
+    fn waited(mut n: NodeReport, waiting_seconds: f64) -> NodeReport {
+        n.waiting_seconds = waiting_seconds;
+        n
+    }
+
     #[test]
     fn efficiency_factors_multiply_to_the_virtual_efficiency() {
         // A compute speed of one half: virtual seconds are twice the host's.
@@ -734,7 +755,10 @@ mod tests {
         };
         let run = MachineStats {
             virtual_seconds: 3.5,
-            per_node: vec![node(1.5, 60, 15), node(1.5, 70, 20)],
+            per_node: vec![
+                waited(node(1.5, 60, 15), 0.25),
+                waited(node(1.5, 70, 20), 0.45),
+            ],
             ..MachineStats::default()
         };
         let f = EfficiencyFactors::of(&run, &base, speed);
@@ -744,6 +768,7 @@ mod tests {
         assert!((f.work_ratio - w_ratio).abs() < 1e-12, "{f:?}");
         assert!((f.cost_ratio - 3.0 / 2.0 / w_ratio).abs() < 1e-12, "{f:?}");
         assert!((f.utilisation - 3.0 / speed / (2.0 * 3.5)).abs() < 1e-12);
+        assert!((f.waiting - 0.7 / (2.0 * 3.5)).abs() < 1e-12, "{f:?}");
         // The speedup over one node, per node.
         let efficiency = base.virtual_seconds / run.virtual_seconds / 2.0;
         let u0 = EfficiencyFactors::of(&base, &base, speed);

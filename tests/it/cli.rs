@@ -1040,12 +1040,14 @@ fn scale_writes_the_table_csv_and_plot() {
         }
     }
     // The efficiency's factors are against the first dimension's runs; a
-    // share of the node time is computing.
+    // share of the node time is computing, another waiting, and together
+    // they are at most all of it.
     assert_eq!(num(&rows[0], "work_ratio"), 1.0, "{csv}");
     assert_eq!(num(&rows[0], "cost_ratio"), 1.0, "{csv}");
     for r in &rows {
-        let u = num(r, "utilisation");
+        let (u, w) = (num(r, "utilisation"), num(r, "waiting"));
         assert!(u > 0.0 && u <= 1.001, "{csv}");
+        assert!(w >= 0.0 && u + w <= 1.002, "{csv}");
         assert!(num(r, "work_ratio") > 0.0 && num(r, "cost_ratio") > 0.0);
     }
     assert!(table.contains("utilisation"), "{table}");
