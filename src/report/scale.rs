@@ -447,7 +447,7 @@ pub fn csv(rows: &[ScaleRow]) -> String {
 /// The rows as an aligned text table.
 pub fn table(rows: &[ScaleRow]) -> String {
     let cols = [
-        0usize, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 19, 21, 24, 25, 26,
+        0usize, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 19, 21, 24, 25, 26, 27,
     ];
     let cells: Vec<Vec<String>> = std::iter::once(HEADER.map(String::from).to_vec())
         .chain(rows.iter().map(|r| fields(r).to_vec()))

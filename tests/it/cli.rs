@@ -1050,7 +1050,10 @@ fn scale_writes_the_table_csv_and_plot() {
         assert!(w >= 0.0 && u + w <= 1.002, "{csv}");
         assert!(num(r, "work_ratio") > 0.0 && num(r, "cost_ratio") > 0.0);
     }
-    assert!(table.contains("utilisation"), "{table}");
+    assert!(
+        table.contains("utilisation") && table.contains("waiting"),
+        "{table}"
+    );
     // One node holds the whole structure; more nodes hold more of it
     // together (every one the skeleton), and send rays to each other.
     assert_eq!(num(&rows[0], "structure_ratio"), 1.0);
