@@ -197,9 +197,6 @@ struct CpuWindow {
     estimated: f64,
     floor: f64,
     excluded: f64,
-    /// The host seconds of its units of work, their emulation taken off:
-    /// the most CPU time they can have taken (`settle`).
-    worked: f64,
     /// When the last slice in it ended.
     slice_end: Ticks,
 }
@@ -213,7 +210,6 @@ impl CpuWindow {
             estimated: 0.0,
             floor: clock,
             excluded: 0.0,
-            worked: 0.0,
             slice_end: now,
         }
     }
@@ -659,7 +655,6 @@ impl<'a> Node<'a> {
         window.excluded += start.seconds_since(window.slice_end);
         let mut t0 = start;
         let mut estimated = 0.0;
-        let mut host_seconds = 0.0;
         let mut worked = false;
         self.excluded = 0.0;
         loop {
@@ -669,9 +664,6 @@ impl<'a> Node<'a> {
             let worked_now = self.work_a_little();
             let (t_mark, excluded) = self.unit.take().ok_or("a unit's start vanished")?;
             estimated += self.unit_charged;
-            // What the unit computed before its sends (`catch_up`), in
-            // host seconds.
-            host_seconds += self.unit_charged * speed;
             if !worked_now? {
                 // Finding nothing to do is not work: the modelled node
                 // idles. (Counted, its CPU time came out as busy with no
@@ -691,7 +683,6 @@ impl<'a> Node<'a> {
             let t1 = Ticks::now();
             let unit = (t1.seconds_since(t_mark) - (self.excluded - excluded)).max(0.0);
             t0 = t1;
-            host_seconds += unit;
             let dt = unit / speed;
             self.clock += dt;
             estimated += dt;
@@ -704,7 +695,6 @@ impl<'a> Node<'a> {
         // the window's tail.
         let end = t0;
         window.estimated += estimated;
-        window.worked += host_seconds;
         window.excluded += self.excluded;
         window.slice_end = end;
         self.cpu_window = Some(if end.seconds_since(window.opened) >= CPU_WINDOW {
@@ -759,13 +749,14 @@ impl<'a> Node<'a> {
         let tail = Ticks::now().seconds_since(w.slice_end);
         let tail = if tail < CPU_WINDOW { tail } else { 0.0 };
         // A thread computes no longer than it runs: what the reading
-        // gives beyond its units' host time was the emulation's, in a gap
-        // long enough to be taken for a wait (`tail`). Charged, it once
-        // had a node busy past the run's end (on a loaded host, about one
-        // small render in 25,000), and it pushed the node's clock on.
-        let cpu = (cpu_now - w.cpu0 - w.excluded - tail).clamp(0.0, w.worked);
-        self.report.busy_seconds += cpu;
+        // gives beyond its units' host time (the estimates, before their
+        // sends too, `catch_up`) was the emulation's, in a gap long enough
+        // to be taken for a wait (`tail`). Charged, it once had a node
+        // busy past the run's end (on a loaded host, about one small
+        // render in 25,000), and it pushed the node's clock on.
         let speed = self.model.compute_speed;
+        let cpu = (cpu_now - w.cpu0 - w.excluded - tail).clamp(0.0, w.estimated * speed);
+        self.report.busy_seconds += cpu;
         self.clock = (self.clock - w.estimated + cpu / speed).max(w.floor);
         (cpu_now, before)
     }
