@@ -72,6 +72,15 @@ mod util {
         (film, stats)
     }
 
+    /// Pixels whose fixed-point sums differ.
+    pub fn differing(a: &Film, b: &Film) -> usize {
+        a.sums()
+            .iter()
+            .zip(b.sums())
+            .filter(|(x, y)| x != y)
+            .count()
+    }
+
     /// `ROBUSTNESS.md`: no pixel is NaN or infinite, ever.
     pub fn assert_finite(film: &Film) {
         for (i, p) in film.to_linear().iter().enumerate() {

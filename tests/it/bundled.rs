@@ -4,7 +4,7 @@
 
 use hypercast::scene::load_scene;
 
-use crate::util::{cells, repo, roth};
+use crate::util::{cells, differing, repo, roth};
 
 fn bundled() -> Vec<std::path::PathBuf> {
     let mut v = Vec::new();
@@ -32,12 +32,7 @@ fn every_bundled_scene_renders_identically_with_cells_and_roth() {
         let (w, h) = (96, (96 * scene.camera.height / scene.camera.width).max(1));
         let (a, _) = roth(&scene, w, h);
         let (b, _) = cells(&scene, w, h);
-        let diff = a
-            .sums()
-            .iter()
-            .zip(b.sums())
-            .filter(|(x, y)| x != y)
-            .count();
+        let diff = differing(&a, &b);
         assert_eq!(
             diff,
             0,

@@ -14,7 +14,7 @@ use hypercast::scene::{Scene, load_scene};
 use hypercast::trace::Film;
 
 use crate::cli::{path_str, run, stderr};
-use crate::util::{cells, repo};
+use crate::util::{cells, differing, repo};
 
 pub fn topo(d: u32) -> Topology {
     Topology::ipsc_d5()
@@ -87,12 +87,7 @@ fn every_dimension_gives_the_single_node_image() {
             for replicas in [Replicas::None, Replicas::Auto] {
                 let (film, stats) = machine_with(&scene, d, (w, h), capacity, replicas);
                 check_stats(&scene, &stats);
-                let diff = film
-                    .sums()
-                    .iter()
-                    .zip(one.sums())
-                    .filter(|(a, b)| a != b)
-                    .count();
+                let diff = differing(&film, &one);
                 assert_eq!(
                     diff, 0,
                     "d = {d}, capacity {capacity}, {replicas:?}: {diff} pixels differ"
@@ -512,15 +507,6 @@ fn a_failing_node_ends_the_run_naming_it() {
     assert!(err.contains("node 5 failed"), "{err}");
     assert!(!out.exists(), "no output after a failure");
     assert!(start.elapsed().as_secs() < 10, "took {:?}", start.elapsed());
-}
-
-/// Pixels whose fixed-point sums differ.
-fn differing(a: &Film, b: &Film) -> usize {
-    a.sums()
-        .iter()
-        .zip(b.sums())
-        .filter(|(x, y)| x != y)
-        .count()
 }
 
 /// The scenes of `scenes/` (the small test scenes of `scenes/small` have

@@ -99,12 +99,7 @@ fn assert_rel(got: f64, want: f64, rel: f64) {
 /// The same pixels, bit for bit.
 #[track_caller]
 fn assert_same_picture(a: &Film, b: &Film, what: &str) {
-    let differ = a
-        .sums()
-        .iter()
-        .zip(b.sums())
-        .filter(|(p, q)| p != q)
-        .count();
+    let differ = util::differing(a, b);
     assert_eq!(differ, 0, "{what}: {differ} pixels differ");
 }
 
