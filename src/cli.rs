@@ -63,7 +63,8 @@ pub struct MachineArgs {
     #[arg(long, value_enum, default_value_t = Mapping::Balanced)]
     pub mapping: Mapping,
     /// Whether a node holds copies of other nodes' super cells in the memory its share leaves
-    /// free, so that rays reaching them need no message (none: the paper's plan alone).
+    /// free, so that rays reaching them need no message (none: the paper's plan alone; whole:
+    /// every node holds everything).
     #[arg(long, value_enum, default_value_t = machine::Replicas::Auto)]
     pub replicas: machine::Replicas,
     /// Envelopes (a slice's messages for one link) each link holds before its sender must wait (1 to 1024).

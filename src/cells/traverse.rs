@@ -622,6 +622,9 @@ pub struct CellTracer<'a> {
     pub eval_counts: EvalCounts,
     /// Work per super cell, when recording (`record_work`).
     profile: Option<Box<[Vec<u64>; 2]>>,
+    /// When recording, the work booked so far over all super cells
+    /// (`recorded_total`).
+    booked: u64,
     /// When recording for a mapping (`record_work_for`), each super cell's
     /// owner, and the structure as a node that owns nothing holds it (every
     /// cell with content remote, with its hull).
@@ -681,6 +684,7 @@ impl<'a> CellTracer<'a> {
             counters: TraceCounters::default(),
             eval_counts: EvalCounts::default(),
             profile: None,
+            booked: 0,
             owners: None,
             copies: None,
             moves: Vec::new(),
@@ -1020,12 +1024,14 @@ impl<'a> CellTracer<'a> {
     }
 
     /// Starts recording, per super cell of each region, the work done in
-    /// its cells (a cell entered counts 1, an intersection test or a mailbox
-    /// hit 3): the machine's cost-estimating pre-pass.
+    /// its cells (a cell entered counts `CELL_WORK`, an intersection test
+    /// or a mailbox hit `TEST_WORK`): the machine's cost-estimating
+    /// pre-pass.
     pub fn record_work(&mut self) {
         self.profile = Some(Box::new(
             Region::BOTH.map(|r| vec![0u64; self.cs.region(r).supers.len()]),
         ));
+        self.booked = 0;
     }
 
     /// `record_work`, walking as the machine would with super cells owned
@@ -1073,6 +1079,12 @@ impl<'a> CellTracer<'a> {
     /// The work recorded since `record_work`.
     pub fn recorded_work(&self) -> Option<&[Vec<u64>; 2]> {
         self.profile.as_deref()
+    }
+
+    /// The work recorded since `record_work`, over all super cells: what
+    /// the rays traced between two reads of it did, wherever they went.
+    pub fn recorded_total(&self) -> u64 {
+        self.booked
     }
 }
 
@@ -1587,9 +1599,7 @@ impl CellTracer<'_> {
             self.cache_node = owners[region as usize][s as usize] as usize;
         }
         let blocker = self.cached_blocker(ray, t_min, t_max);
-        if let Some(p) = &mut self.profile {
-            p[region as usize][s as usize] += TEST_WORK;
-        }
+        self.book_test(region, s);
         blocker
     }
 
@@ -1662,17 +1672,21 @@ impl CellTracer<'_> {
             self.counters.mailbox_hits - met
         };
         let (r, b) = through.or(book_to).unwrap_or((region, s));
-        if let Some(p) = &mut self.profile {
-            p[r as usize][b as usize] += CELL_WORK + TEST_WORK * (tests + met);
-        }
+        self.book(r, b, CELL_WORK + TEST_WORK * (tests + met));
         hit
     }
 
     /// Books one intersection test to super cell `s` of `region`, when
     /// recording.
     fn book_test(&mut self, region: Region, s: u32) {
+        self.book(region, s, TEST_WORK);
+    }
+
+    /// Books `work` to super cell `s` of `region`, when recording.
+    fn book(&mut self, region: Region, s: u32, work: u64) {
         if let Some(p) = &mut self.profile {
-            p[region as usize][s as usize] += TEST_WORK;
+            p[region as usize][s as usize] += work;
+            self.booked += work;
         }
     }
 }

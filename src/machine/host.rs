@@ -279,6 +279,8 @@ pub struct Plan {
     /// Per super cell, the nodes that hold a copy of it (`replicas`), if
     /// any do.
     pub copies: Option<crate::cells::Copies>,
+    /// Every node holds the whole structure (`Replicas::Whole`).
+    pub whole: bool,
 }
 
 /// How much the machine adds to the paper's subdivision for its balance
@@ -427,15 +429,20 @@ impl Plan {
         // so a piece may still be heavy).
         let mut hot: [Vec<crate::cells::Hot>; 2] = Default::default();
         let cam = crate::trace::CameraFrame::new(scene, w, h);
-        let pixel_area = (2.0 * cam.half_w / f64::from(w)) * (2.0 * cam.half_h / f64::from(h));
         let mut round = 0;
-        let (mut work, mut owner, mut moves) = mapping::map(&cells, scene, w, h, opts.mapping, d)?;
+        // Nodes that hold everything are balanced on their pixels' work.
+        let whole = opts.replicas == Replicas::Whole;
+        let map = |cells: &CellStructure| match opts.mapping {
+            Mapping::Balanced if whole => mapping::map_whole(cells, scene, w, h, d),
+            _ => mapping::map(cells, scene, w, h, opts.mapping, d),
+        };
+        let (mut work, mut owner, mut moves) = map(&cells)?;
         let as_built = moves.len();
         while opts.mapping == Mapping::Balanced
             && sub == Subdivision::Balanced
             && round < HOT_ROUNDS
         {
-            let more = mapping::hot(&cells, &work, d, pixel_area);
+            let more = mapping::hot(&cells, &work, d, (&cam, w, h), whole);
             if more.iter().all(Vec::is_empty) {
                 break;
             }
@@ -450,8 +457,7 @@ impl Plan {
                 cell_opts,
                 &[&next_hot[0], &next_hot[1]],
             )?;
-            let (next_work, next_owner, next_moves) =
-                mapping::map(&next, scene, w, h, opts.mapping, d)?;
+            let (next_work, next_owner, next_moves) = map(&next)?;
             // Splits trade messages for balance; past this, they cost more
             // than they even out (`HOT_CROSSINGS`).
             if next_moves.len() as f64 > HOT_CROSSINGS * as_built as f64 {
@@ -480,7 +486,12 @@ impl Plan {
                 })
                 .collect()
         };
-        let mut shares = own_shares(&owner);
+        let mut shares = if whole {
+            let all = cells.restrict_with(scene, &|_, _| true, &hulls);
+            vec![all; n]
+        } else {
+            own_shares(&owner)
+        };
         let path_bytes = path_bound(scene);
         // Every node may come to hold every path in flight (n windows),
         // and a window's room of finished records no credit covers, not
@@ -498,6 +509,14 @@ impl Plan {
         };
         let mut window = window_for(&shares);
         let mut copies = None;
+        if whole && n > 1 {
+            // Each node holds a copy of every super cell it does not own.
+            copies = Some(owner.clone().map(|o| {
+                o.iter()
+                    .map(|&own| (0..n as u16).filter(|&i| i != own).collect())
+                    .collect()
+            }));
+        }
         if opts.replicas == Replicas::Auto && n > 1 && window > 0 && !moves.is_empty() {
             // What a node's share may take with copies: all but the room
             // for `KEEP_WINDOW` of the window its own share leaves.
@@ -562,6 +581,7 @@ impl Plan {
             subdivision: sub,
             crossings: moves.len() as u64,
             copies,
+            whole,
         })
     }
 
@@ -637,7 +657,12 @@ impl Plan {
             })
         };
         let more_memory = |why: Option<String>| Remedy::MoreMemory { why };
-        let remedy = if d >= MAX_DIMENSION {
+        let remedy = if self.whole {
+            more_memory(Some(
+                "with --replicas whole every node holds the whole scene, so more nodes cannot help"
+                    .into(),
+            ))
+        } else if d >= MAX_DIMENSION {
             more_memory(None)
         } else if let Some(b) = Some(skeleton()).filter(|&b| b + more_rays > topo.node_memory) {
             more_memory(Some(format!(

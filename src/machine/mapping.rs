@@ -138,7 +138,7 @@ pub fn map(
         }
         Mapping::Balanced => {
             let stride = prepass_stride(width, height, 1 << d);
-            let (first, _) = prepass(cs, scene, width, height, None, stride)?;
+            let (first, _) = prepass(cs, scene, width, height, Walked::Alone, stride)?;
             if d == 0 {
                 let owner = assign(cs, &beside, &first, d);
                 return Ok((first, owner, Vec::new()));
@@ -158,7 +158,7 @@ pub fn map(
                     scene,
                     width,
                     height,
-                    Some((owner, &skeleton, None)),
+                    Walked::Under((owner, &skeleton, None)),
                     stride,
                 )
             };
@@ -185,6 +185,49 @@ pub fn map(
     }
 }
 
+/// `map`'s balanced mapping for nodes that each hold the whole structure
+/// (`Replicas::Whole`): no ray leaves the node of its pixel, so a node's
+/// load is the work of its pixels' paths, wherever in the scene they go.
+/// One pre-pass books that work to each pixel's super cell
+/// (`Walked::ByPixel`), and the super cells are dealt out on it alone
+/// (`spread`): with no ray moving between nodes, neighbouring screen
+/// regions need not share a node, and walking under the mapping would
+/// book the same again. No moves.
+pub fn map_whole(
+    cs: &CellStructure,
+    scene: &Scene,
+    width: u32,
+    height: u32,
+    d: u32,
+) -> Result<Mapped> {
+    let stride = prepass_stride(width, height, 1 << d);
+    let (work, _) = prepass(cs, scene, width, height, Walked::ByPixel, stride)?;
+    let owner = spread(&work, d);
+    Ok((work, owner, Vec::new()))
+}
+
+/// Super cells dealt to `2^d` nodes by their work alone, heaviest first,
+/// each to the node least loaded so far (Graham's LPT rule; ties to the
+/// lower super cell and node). Back super cells, where no pixel is, hold
+/// no work and go to node 0.
+fn spread(work: &[Vec<f64>; 2], d: u32) -> [Vec<u16>; 2] {
+    let mut owner = work.clone().map(|w| vec![0u16; w.len()]);
+    let front = &work[Region::Front as usize];
+    let mut order: Vec<usize> = (0..front.len()).collect();
+    order.sort_by(|&a, &b| front[b].total_cmp(&front[a]).then(a.cmp(&b)));
+    let mut load = vec![0.0f64; 1 << d];
+    for s in order {
+        let (node, _) = load
+            .iter()
+            .enumerate()
+            .min_by(|a, b| a.1.total_cmp(b.1).then(a.0.cmp(&b.0)))
+            .expect("a hypercube has 2^d >= 1 nodes");
+        load[node] += front[s];
+        owner[Region::Front as usize][s] = node as u16;
+    }
+    owner
+}
+
 /// A super cell heavier than this share of a node's mean load is split by
 /// the build (`hot`), into pieces of at most `HOT_PIECE` by area.
 /// At 1024x1024 on 32 nodes, `jagged_ball.ron` had super cells of a
@@ -209,16 +252,39 @@ pub const HOT_MIN_PIXELS: f64 = 16.0;
 /// cells smaller (`bsp::Hot`), by the work `work` estimates per super cell
 /// for `2^d` nodes: each front super cell of more than `HOT_LOAD` of a
 /// node's mean load, into pieces of at most `HOT_PIECE` of it (supposing
-/// its work spread evenly over its rectangle) and at least
-/// `HOT_MIN_PIXELS` pixels of `pixel_area` (in screen units). An
-/// unbounded super cell (the partition is of the whole plane) is cut
-/// within the span of the region's finite coordinates. Behind the eye,
-/// where no pixel is, super cells are left as they are.
-pub fn hot(cs: &CellStructure, work: &[Vec<f64>; 2], d: u32, pixel_area: f64) -> [Vec<Hot>; 2] {
+/// its work spread evenly over its rectangle) and at least `HOT_MIN_PIXELS`
+/// pixels of `cam`'s `width` by `height` image. An unbounded super cell
+/// (the partition is of the whole plane) is cut within the span of the
+/// region's finite coordinates, and, with `to_edges`, of the screen window
+/// too, since its pixels may lie past the first, out to the screen's edges.
+/// `to_edges` is for nodes that hold everything (`map_whole`), where a
+/// split costs no crossing: on 32 nodes the jagged ball's heaviest super
+/// cells (its floor, 1.5 to 2 nodes' loads) reached past every finite cut,
+/// and unsplit they kept the loads at 1.55-1.57 predicted and 1.62-1.66
+/// measured; cut to the edges, 1.002-1.006 and 1.20-1.26. Where rays walk
+/// between nodes, the floor's pieces sent them across so often that the
+/// plan kept no split at all (`Plan::new`), and the render took 717-729
+/// virtual seconds against 567-600. Behind the eye, where no pixel is,
+/// super cells are left as they are.
+pub fn hot(
+    cs: &CellStructure,
+    work: &[Vec<f64>; 2],
+    d: u32,
+    (cam, width, height): (&CameraFrame, u32, u32),
+    to_edges: bool,
+) -> [Vec<Hot>; 2] {
     let mean = work.iter().flatten().sum::<f64>() / (1u64 << d) as f64;
+    let pixel_area = (2.0 * cam.half_w / f64::from(width)) * (2.0 * cam.half_h / f64::from(height));
     Region::BOTH.map(|r| {
         let supers = &cs.region(r).supers;
-        let span = finite_span(supers);
+        let (mut lo, mut hi) = finite_span(supers);
+        if to_edges {
+            for (k, half) in [cam.half_w, cam.half_h].into_iter().enumerate() {
+                lo[k] = lo[k].min(-half);
+                hi[k] = hi[k].max(half);
+            }
+        }
+        let span = (lo, hi);
         supers
             .iter()
             .zip(&work[r as usize])
@@ -267,8 +333,9 @@ fn clamped(r: &Rect, (lo, hi): ([f64; 2], [f64; 2])) -> [Option<(f64, f64)>; 2] 
 
 /// Traces every `stride`-th pixel of every `stride`-th row
 /// through the whole structure, all its ray kinds, recording the work per
-/// super cell; with `owner`, as the machine walks under that mapping
-/// (`CellTracer::record_work_for`).
+/// super cell (`Walked`): where one node would do it, as the machine walks
+/// under a mapping (`CellTracer::record_work_for`), or, for nodes that
+/// hold everything, on the super cell of each path's pixel.
 ///
 /// Why walk as the machine does: the first pass alone balances what one
 /// node would do, but on the machine the work a ray repeats after a
@@ -286,7 +353,7 @@ fn prepass(
     scene: &Scene,
     width: u32,
     height: u32,
-    walk: Option<WalkUnder>,
+    walk: Walked,
     stride: u32,
 ) -> Result<([Vec<f64>; 2], Vec<Move>)> {
     let cam = CameraFrame::new(scene, width, height);
@@ -303,12 +370,21 @@ fn prepass(
         let shader = Shader::new(scene);
         let mut tracer = CellTracer::new(cs, scene);
         match walk {
-            Some((owner, skeleton, None)) => tracer.record_work_for(owner.clone(), skeleton),
-            Some((owner, skeleton, Some(copies))) => {
+            Walked::Under((owner, skeleton, None)) => {
+                tracer.record_work_for(owner.clone(), skeleton)
+            }
+            Walked::Under((owner, skeleton, Some(copies))) => {
                 tracer.record_work_with_copies(owner.clone(), skeleton, copies.clone())
             }
-            None => tracer.record_work(),
+            Walked::Alone => tracer.record_work(),
+            // As on a node that owns every super cell: no mailbox hit
+            // counts as a test (none stands for a test after a move).
+            Walked::ByPixel => {
+                tracer.record_work_for(Region::BOTH.map(|r| vec![0; cs.region(r).supers.len()]), cs)
+            }
         }
+        // Per front super cell, the work of the paths of its pixels.
+        let mut by_pixel = vec![0u64; cs.region(Region::Front).supers.len()];
         let (mut counts, mut stack, mut jobs) = (RayCounts::default(), Vec::new(), Vec::new());
         for &j in rows.iter().skip(t).step_by(threads) {
             if refused.load(Relaxed) {
@@ -322,15 +398,23 @@ fn prepass(
             for i in sampled(width, stride) {
                 jobs.clear();
                 pixel_jobs(&cam, i, j, 1, &mut jobs);
+                let (before, pixel) = (tracer.recorded_total(), jobs.first().map(|j| j.ray));
                 for job in jobs.drain(..) {
                     shader.run_path(&mut tracer, job, &mut film, &mut counts, &mut stack);
                 }
+                if let (Walked::ByPixel, Some(ray)) = (walk, pixel) {
+                    let s = cs.primary_super_cell(&ray) as usize;
+                    by_pixel[s] += tracer.recorded_total() - before;
+                }
             }
         }
-        let work = tracer
+        let mut work = tracer
             .recorded_work()
             .expect("record_work or record_work_for was called above")
             .clone();
+        if matches!(walk, Walked::ByPixel) {
+            work = [by_pixel, vec![0; work[1].len()]];
+        }
         (work, tracer.recorded_moves().to_vec())
     };
     let started = threads.min(rows.len()).max(1);
@@ -372,6 +456,19 @@ fn prepass(
 /// and the copies nodes hold, if any.
 type WalkUnder<'a> = (&'a [Vec<u16>; 2], &'a CellStructure, Option<&'a Copies>);
 
+/// How a pre-pass walks, and where it books the work (`prepass`).
+#[derive(Clone, Copy)]
+enum Walked<'a> {
+    /// As one node would: to the super cell where it is done.
+    Alone,
+    /// As the machine will under a mapping (`WalkUnder`): to the super
+    /// cell the ray's node does it for.
+    Under(WalkUnder<'a>),
+    /// As a node that holds everything: to the super cell of the path's
+    /// pixel, where such nodes start the path and finish it.
+    ByPixel,
+}
+
 /// What a pre-pass thread recorded: work per super cell, and the moves.
 type Recorded = ([Vec<u64>; 2], Vec<Move>);
 
@@ -397,7 +494,7 @@ pub fn predicted_loads(
         scene,
         width,
         height,
-        Some((owner, &skeleton, copies)),
+        Walked::Under((owner, &skeleton, copies)),
         stride.max(1),
     )?;
     Ok(loads(&work, owner, d))
@@ -431,7 +528,7 @@ pub fn rebalance_with_copies(
         scene,
         width,
         height,
-        Some((owner, &skeleton, Some(copies))),
+        Walked::Under((owner, &skeleton, Some(copies))),
         stride,
     )?;
     if predicted_imbalance(&work, owner, d) <= EVEN_WITH_COPIES {

@@ -28,6 +28,8 @@
 //! (`place`; where the refined mapping would pass the bound, no copies). A super cell's pixels stay its owner's. The image is the
 //! same with and without copies (a cell's content is the same wherever
 //! it is walked), and `--replicas none` gives the paper's plan alone.
+//! `--replicas whole` (`Replicas::Whole`) is not placed here: every node
+//! then holds everything (`host::Plan`), mapped by `mapping::map_whole`.
 
 use std::collections::BTreeMap;
 
@@ -45,6 +47,12 @@ pub enum Replicas {
     /// paper's plan alone; the super cells the mapping asks for are cut
     /// from the BSP's first level on, `CellOptions::force_from_root`).
     None,
+    /// Every node holds the whole structure and scene, so no ray leaves
+    /// the node of its pixel (the scene replicated, the classic
+    /// alternative to the paper's plan; refused where it does not fit a
+    /// node). The super cells still share out the pixels, dealt out by
+    /// their pixels' work (`mapping::map_whole`).
+    Whole,
 }
 
 impl Replicas {
@@ -52,6 +60,7 @@ impl Replicas {
         match self {
             Replicas::Auto => "auto",
             Replicas::None => "none",
+            Replicas::Whole => "whole",
         }
     }
 }

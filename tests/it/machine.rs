@@ -265,8 +265,7 @@ fn splits_that_multiply_the_crossings_are_not_made() {
     let plan = Plan::with_subdivision(&scene, &topo(d), &o, Subdivision::Balanced).unwrap();
     assert_eq!(plan.split_super_cells, 0);
     let cam = CameraFrame::new(&scene, w, h);
-    let pixel_area = (2.0 * cam.half_w / f64::from(w)) * (2.0 * cam.half_h / f64::from(h));
-    let heavy = machine::mapping::hot(&plan.cells, &plan.work, d, pixel_area);
+    let heavy = machine::mapping::hot(&plan.cells, &plan.work, d, (&cam, w, h), false);
     assert!(
         heavy.iter().any(|r| !r.is_empty()),
         "no heavy super cell to split"
@@ -363,8 +362,14 @@ fn random_scenes_on_random_dimensions_equal_one_node() {
             _ => (1, None),
         };
         let mapping = [Mapping::Balanced, Mapping::EqualArea][(mix / 252 % 2) as usize];
-        // Copies mostly (the default), the paper's plan alone a third.
-        let replicas = [Replicas::Auto, Replicas::Auto, Replicas::None][(mix / 504 % 3) as usize];
+        // Copies half the time (the default), the paper's plan alone and
+        // the whole scene on every node a quarter each.
+        let replicas = [
+            Replicas::Auto,
+            Replicas::Auto,
+            Replicas::None,
+            Replicas::Whole,
+        ][(mix / 504 % 4) as usize];
         let host = render::render_host(
             &scene,
             &RenderOptions {
@@ -903,4 +908,72 @@ fn copies_keep_within_twice_the_single_structure_and_half_the_window() {
             );
         }
     }
+}
+
+/// `--replicas whole`: every node holds the whole structure, so no ray
+/// leaves the node of its pixel: no hop, every share the whole one (so
+/// copies of others' super cells on every node), and the image of one
+/// node, on every bundled scene that fits a node whole (the sphereflake
+/// of level 4 does not: `whole_replicas_refuse_a_scene_no_node_holds`).
+#[test]
+fn whole_replicas_send_no_ray_between_nodes_and_give_one_nodes_image() {
+    for path in bundled_scenes()
+        .into_iter()
+        .filter(|p| !p.ends_with("sphereflake4.nff"))
+    {
+        let scene = load_scene(&path).unwrap();
+        let (w, h) = (48, (48 * scene.camera.height / scene.camera.width).max(1));
+        let (reference, _) = cells(&scene, w, h);
+        for d in [1, 3, 5] {
+            let how = format!("{}, d = {d}", path.display());
+            for capacity in [machine::DEFAULT_CAPACITY, 1] {
+                let (film, s) = machine_with(&scene, d, (w, h), capacity, Replicas::Whole);
+                check_stats(&scene, &s);
+                assert_eq!(differing(&film, &reference), 0, "{how}");
+                assert_eq!(s.hops, 0, "{how}");
+                let whole = s.per_node[0].structure_bytes;
+                for n in &s.per_node {
+                    assert_eq!(n.structure_bytes, whole, "{how}: node {}", n.node);
+                    assert_eq!(n.paths_forwarded, 0, "{how}: node {}", n.node);
+                    assert!(n.copies > 0, "{how}: node {} holds no copy", n.node);
+                }
+            }
+        }
+    }
+}
+
+/// Where every node holds everything, the plan deals the super cells out
+/// by the work of their pixels' paths, and splits the heavy ones out to
+/// the screen's edges: on 32 nodes the jagged ball's floor, whose super
+/// cells reach past every finite cut of the plane, held 1.5-1.6 nodes'
+/// predicted loads unsplit; now the loads are even.
+#[test]
+fn whole_replicas_even_the_loads_of_32_nodes() {
+    use hypercast::machine::host::Plan;
+    let scene = load_scene(&repo("scenes/jagged_ball.ron")).unwrap();
+    let mut o = MachineOptions::new(640, 480, 1);
+    o.replicas = Replicas::Whole;
+    let plan = Plan::new(&scene, &topo(5), &o).unwrap();
+    let predicted = machine::mapping::predicted_imbalance(&plan.work, &plan.owner, 5);
+    assert!(predicted <= 1.05, "predicted imbalance {predicted}");
+    assert!(plan.split_super_cells > 0);
+    assert!(plan.whole && plan.crossings == 0);
+}
+
+/// A scene that no node can hold whole is refused with `--replicas
+/// whole` however many nodes there are, and the refusal says so instead
+/// of asking for more of them.
+#[test]
+fn whole_replicas_refuse_a_scene_no_node_holds() {
+    let scene = load_scene(&repo("scenes/sphereflake4.nff")).unwrap();
+    let mut o = MachineOptions::new(48, 48, 1);
+    o.replicas = Replicas::Whole;
+    let e = machine::render(&scene, &topo(5), &o, &|_| {}).expect_err("refused");
+    let msg = e.to_string();
+    assert!(matches!(e, Error::Capacity(_)), "{msg}");
+    assert!(
+        msg.contains("--replicas whole") && msg.contains("--node-memory") && !msg.contains("--dim"),
+        "{msg}"
+    );
+    assert_eq!(e.exit_code(), 2);
 }
