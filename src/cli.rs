@@ -966,8 +966,17 @@ fn run_scale(a: ScaleArgs) -> Result<()> {
         path: a.out.clone(),
         message: e.to_string(),
     })?;
+    // Modes other than the defaults are named, so that plots of one
+    // scene side by side say which is which.
+    let mut modes = String::new();
+    if opts.replicas != machine::Replicas::default() {
+        modes += &format!(", --replicas {}", opts.replicas.name());
+    }
+    if opts.mapping != Mapping::Balanced {
+        modes += &format!(", --mapping {}", opts.mapping.name());
+    }
     let title = format!(
-        "{} on {} ({}x{}, {} spp)",
+        "{} on {} ({}x{}, {} spp{modes})",
         a.scene
             .file_name()
             .map_or("scene".into(), |s| s.to_string_lossy()),
