@@ -17,7 +17,7 @@ use super::node;
 use super::replicas::{self, Replicas};
 use super::topology::{MAX_DIMENSION, Topology};
 use super::transport::{HostLinks, Link, NodeLinks, channels};
-use crate::cells::{CellOptions, CellStructure};
+use crate::cells::{CellOptions, CellStructure, Region};
 use crate::error::{Error, Refusal, Remedy, Result};
 use crate::render::{self, AaSummary, Adaptive, Pass, RenderStats, Sampling, TraceCounters};
 use crate::scene::Scene;
@@ -510,10 +510,15 @@ impl Plan {
         let mut window = window_for(&shares);
         let mut copies = None;
         if whole && n > 1 {
-            // Each node holds a copy of every super cell it does not own.
-            copies = Some(owner.clone().map(|o| {
-                o.iter()
-                    .map(|&own| (0..n as u16).filter(|&i| i != own).collect())
+            // Each node holds a copy of every super cell with content that
+            // it does not own (counted as `auto`'s copies are).
+            copies = Some(Region::BOTH.map(|r| {
+                let rc = cells.region(r);
+                (0..rc.supers.len() as u32)
+                    .map(|s| match owner[r as usize][s as usize] {
+                        _ if rc.super_cell_is_empty(s) => Vec::new(),
+                        own => (0..n as u16).filter(|&i| i != own).collect(),
+                    })
                     .collect()
             }));
         }

@@ -932,10 +932,16 @@ fn whole_replicas_send_no_ray_between_nodes_and_give_one_nodes_image() {
                 assert_eq!(differing(&film, &reference), 0, "{how}");
                 assert_eq!(s.hops, 0, "{how}");
                 let whole = s.per_node[0].structure_bytes;
+                // What `inspect` shows of the plan is what the nodes held.
+                let mut o = MachineOptions::new(w, h, 1);
+                o.replicas = Replicas::Whole;
+                let plan = machine::host::Plan::new(&scene, &topo(d), &o).unwrap();
                 for n in &s.per_node {
                     assert_eq!(n.structure_bytes, whole, "{how}: node {}", n.node);
                     assert_eq!(n.paths_forwarded, 0, "{how}: node {}", n.node);
                     assert!(n.copies > 0, "{how}: node {} holds no copy", n.node);
+                    let planned = plan.copies_held(n.node as usize) as u64;
+                    assert_eq!(n.copies, planned, "{how}: node {}", n.node);
                 }
             }
         }
