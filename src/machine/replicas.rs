@@ -25,11 +25,12 @@
 //! Copies move work (the rays a node would have sent, it traces itself),
 //! so the pre-pass is walked again with them, and where it finds the
 //! loads uneven the mapping is refined and the copies chosen again for it
-//! (`place`; where the refined mapping would pass the bound, no copies). A super cell's pixels stay its owner's. The image is the
-//! same with and without copies (a cell's content is the same wherever
-//! it is walked), and `--replicas none` gives the paper's plan alone.
-//! `--replicas whole` (`Replicas::Whole`) is not placed here: every node
-//! then holds everything (`host::Plan`), mapped by `mapping::map_whole`.
+//! (`place`; where the refined mapping would pass the bound, no copies).
+//! A super cell's pixels stay its owner's. The image is the same with and
+//! without copies (a cell's content is the same wherever it is walked),
+//! and `--replicas none` gives the paper's plan alone. `--replicas whole`
+//! (`Replicas::Whole`) is not placed here: every node then holds
+//! everything (`host::Plan`), mapped by `mapping::map_whole`.
 
 use std::collections::BTreeMap;
 
@@ -361,12 +362,13 @@ pub fn place(
     })
 }
 
-/// Every node's share with copies, and which copies each holds. A node that copies every super cell it wants holds the whole
-/// structure (`Machine::whole`), so what each would add is known before
-/// any restriction: the room `REPLICA_CAP` leaves over all nodes goes
-/// first, whole, to the nodes that want least (each within an equal part
-/// of what is left), and the others share the rest equally and copy what
-/// fits of it by `share_with_copies`. No share passes `memory` bytes
+/// Every node's share with copies, and which copies each holds. A node
+/// that copies every super cell it wants holds the whole structure
+/// (`Machine::whole`), so what each would add is known before any
+/// restriction: the room `REPLICA_CAP` leaves over all nodes goes first,
+/// whole, to the nodes that want least (each within an equal part of what
+/// is left), and the others share the rest equally and copy what fits of
+/// it by `share_with_copies`. No share passes `memory` bytes
 /// (`node::share_bytes`).
 fn choose(
     m: &Machine,
