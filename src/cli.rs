@@ -843,7 +843,7 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
         "node  super_cells  copies  cells  primitives  memory_MiB  structure_MiB  estimated_work"
     );
     let mut nodes_json = Vec::new();
-    for (i, (share, local)) in plan.shares.iter().enumerate() {
+    for (i, (share, local)) in plan.node_shares().enumerate() {
         let owned: Vec<(usize, usize)> = (0..2)
             .flat_map(|r| {
                 plan.owner[r]
@@ -869,7 +869,7 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
         );
         nodes_json.push(json!({"node": i, "super_cells": owned.len(), "copies": plan.copies_held(i), "cells": cells, "primitives": local.primitives.len(), "memory_bytes": plan.share_bytes[i], "structure_bytes": share.bytes(), "estimated_work": work}));
     }
-    let held: usize = plan.shares.iter().map(|(c, _)| c.bytes()).sum();
+    let held: usize = plan.node_shares().map(|(c, _)| c.bytes()).sum();
     println!(
         "structure held     {:.2} MiB over all nodes, {:.2}x the whole structure",
         held as f64 / 1048576.0,

@@ -10,7 +10,9 @@ use std::time::Instant;
 
 use rustc_hash::FxHashMap;
 
-use super::codec::{append_stamped, decode_envelope, encode_stamped, for_each_done};
+use super::codec::{
+    FrameLen, append_stamped, decode_envelope, encode_stamped, for_each_done, restamp,
+};
 use super::mapping::{self, Mapping};
 use super::message::{Finished, LinkModel, NodeReport, Part, Path, Share, ToHost, ToNode};
 use super::node;
@@ -257,8 +259,10 @@ pub struct Plan {
     pub cells: CellStructure,
     pub work: [Vec<f64>; 2],
     pub owner: [Vec<u16>; 2],
-    /// Per node: its structure and scene.
-    pub shares: Vec<(CellStructure, Scene)>,
+    /// Per node, its structure and scene (`share`); with the whole scene
+    /// on every node, one for all, not a copy per node.
+    shares: Vec<(CellStructure, Scene)>,
+    /// Per node, the bytes of its share.
     pub share_bytes: Vec<u64>,
     /// What one node would hold with the whole scene replicated.
     pub replicated_bytes: u64,
@@ -487,8 +491,7 @@ impl Plan {
                 .collect()
         };
         let mut shares = if whole {
-            let all = cells.restrict_with(scene, &|_, _| true, &hulls);
-            vec![all; n]
+            vec![cells.restrict_with(scene, &|_, _| true, &hulls)]
         } else {
             own_shares(&owner)
         };
@@ -567,9 +570,11 @@ impl Plan {
         }
         // The mapping's time, with the copies' (their pre-pass).
         let prepass_seconds = t_pre.elapsed().as_secs_f64();
-        let share_bytes: Vec<u64> = shares
-            .iter()
-            .map(|(c, s)| node::share_bytes(c, s))
+        let share_bytes: Vec<u64> = (0..n)
+            .map(|i| {
+                let (c, s) = &shares[if whole { 0 } else { i }];
+                node::share_bytes(c, s)
+            })
             .collect();
         Ok(Plan {
             replicated_bytes: node::share_bytes(&cells, scene),
@@ -588,6 +593,21 @@ impl Plan {
             copies,
             whole,
         })
+    }
+
+    /// Node `node`'s structure and scene.
+    pub fn share(&self, node: usize) -> &(CellStructure, Scene) {
+        &self.shares[self.share_index(node)]
+    }
+
+    /// Which of the distinct shares node `node` gets.
+    fn share_index(&self, node: usize) -> usize {
+        if self.whole { 0 } else { node }
+    }
+
+    /// Every node's share (`share`), in node order.
+    pub fn node_shares(&self) -> impl Iterator<Item = &(CellStructure, Scene)> {
+        (0..self.share_bytes.len()).map(|i| self.share(i))
     }
 
     /// Finished records that no credit covers and that may wait on their
@@ -775,19 +795,24 @@ fn run_pass(
     super::ticks::calibrate();
     let mut run = Run::new(opts.width, opts.height, pass.spp, n, model);
     let pixels = pass.pixels.list().map(|l| l.to_vec());
+    let faults = |i: usize| node::Faults {
+        fail_after: opts.fail.filter(|f| f.0 as usize == i).map(|f| f.1),
+        stall_on_send: opts.stall.filter(|f| f.0 as usize == i).map(|f| f.1),
+    };
     std::thread::scope(|sc| -> Result<()> {
         for (i, mut links) in node_links.into_iter().enumerate() {
             std::thread::Builder::new()
                 .name(format!("hypercast-node-{i}"))
                 .stack_size(64 << 20)
-                .spawn_scoped(sc, move || node_thread(i as u16, &mut links))
+                .spawn_scoped(sc, move || node_thread(i as u16, &mut links, faults(i)))
                 .map_err(|e| Error::Render(format!("cannot start node {i}: {e}")))?;
         }
-        // Load messages, one per node, in turn over the host's link.
-        let mut loaded = Ok(());
-        for (i, (cells, local)) in plan.shares.iter().enumerate() {
+        // Load messages, one per node, in turn over the host's link. A
+        // share is encoded once however many nodes get it (with the whole
+        // scene on every node, one for all), and each of those nodes gets
+        // its own copy of the bytes.
+        let encode = |(cells, local): &(CellStructure, Scene)| {
             let share = Share {
-                node: i as u16,
                 dimension: d,
                 cells: cells.clone(),
                 scene: local.clone(),
@@ -802,14 +827,29 @@ fn run_pass(
                 budget: topo.node_memory,
                 link: model,
                 lag_slices,
-                fail_after: opts.fail.filter(|f| f.0 as usize == i).map(|f| f.1),
-                stall_on_send: opts.stall.filter(|f| f.0 as usize == i).map(|f| f.1),
             };
-            if let Err(e) = run.send(&mut host, i as u16, &ToNode::Load(Box::new(share))) {
+            encode_stamped(&ToNode::Load(Box::new(share)), |_| 0.0).map_err(Error::Render)
+        };
+        let mut loaded = Ok(());
+        // The last share encoded: its index, bytes and frame length.
+        let mut last: Option<(usize, Vec<u8>, FrameLen)> = None;
+        for i in 0..n {
+            let k = plan.share_index(i);
+            let frame = match last.take() {
+                Some(same) if same.0 == k => Ok(same),
+                _ => encode(plan.share(i)).map(|(bytes, len)| (k, bytes, len)),
+            };
+            let sent = frame.and_then(|(k, bytes, len)| {
+                let sent = run.send_frame(&mut host, i as u16, bytes.clone(), len);
+                last = Some((k, bytes, len));
+                sent
+            });
+            if let Err(e) = sent {
                 loaded = Err(e);
                 break;
             }
         }
+        drop(last);
         match loaded {
             Ok(()) => run.collect(&mut host, progress),
             Err(e) => {
@@ -864,8 +904,8 @@ fn busy_imbalance(nodes: &[NodeReport]) -> f64 {
 
 /// A node's thread: runs it, and turns an error or a panic into a
 /// `Failed` message naming the node, so that the host ends the run.
-fn node_thread(id: u16, links: &mut dyn NodeLinks) {
-    let outcome = catch_unwind(AssertUnwindSafe(|| node::run(id, links)));
+fn node_thread(id: u16, links: &mut dyn NodeLinks, faults: node::Faults) {
+    let outcome = catch_unwind(AssertUnwindSafe(|| node::run(id, links, faults)));
     let error = match outcome {
         Ok(Ok(())) => return,
         Ok(Err(e)) => e,
@@ -952,12 +992,21 @@ impl Run {
     }
 
     fn send(&mut self, host: &mut dyn HostLinks, node: u16, body: &ToNode) -> Result<()> {
-        let (model, clock) = (self.model, &mut self.clock);
-        let (bytes, len) = encode_stamped(body, |len| {
-            *clock += model.send_cost(len);
-            *clock
-        })
-        .map_err(Error::Render)?;
+        let (bytes, len) = encode_stamped(body, |_| 0.0).map_err(Error::Render)?;
+        self.send_frame(host, node, bytes, len)
+    }
+
+    /// Sends an envelope of one frame encoded beforehand (`encode_stamped`),
+    /// stamped here with the time it leaves the host.
+    fn send_frame(
+        &mut self,
+        host: &mut dyn HostLinks,
+        node: u16,
+        mut bytes: Vec<u8>,
+        len: FrameLen,
+    ) -> Result<()> {
+        self.clock += self.model.send_cost(len.wire);
+        restamp(&mut bytes, 0, self.clock);
         self.messages += 1;
         self.bytes += len.wire as u64;
         self.transmit(host, node, bytes)

@@ -72,11 +72,13 @@ pub enum ToHost {
     },
 }
 
-/// A node's share: everything it will ever know about the scene.
+/// A node's share: everything it will ever know about the scene. Nothing
+/// in it names the node (a node knows its own number from its links, as
+/// the iPSC's nodes did), so nodes with the same share, as every node is
+/// with the whole scene (`Replicas::Whole`), get the same bytes, encoded
+/// once.
 #[derive(Serialize, Deserialize)]
 pub struct Share {
-    /// This node's number, 0..2^dimension.
-    pub node: u16,
     /// The hypercube's dimension d: the node's links are to the nodes
     /// whose numbers differ from its own in one of d bits.
     pub dimension: u32,
@@ -113,10 +115,6 @@ pub struct Share {
     /// neighbours': an emulation parameter of the host's threads, not of
     /// the modelled machine (`node::lag_slices`).
     pub lag_slices: f64,
-    /// Test-only fault injection: fail after this many paths processed.
-    pub fail_after: Option<u64>,
-    /// Test-only: host seconds of CPU to burn after each send.
-    pub stall_on_send: Option<f64>,
 }
 
 /// The topology's cost model of computing and communicating.

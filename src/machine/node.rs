@@ -148,7 +148,7 @@ pub type NodeError = String;
 
 /// Runs node `id` on its links until the host says stop. Errors are
 /// reported to the host by the caller.
-pub fn run(id: u16, links: &mut dyn NodeLinks) -> Result<(), NodeError> {
+pub fn run(id: u16, links: &mut dyn NodeLinks, faults: Faults) -> Result<(), NodeError> {
     // The load message first. Neighbours loaded earlier may already send
     // rays: those wait until the node knows its share (and its memory),
     // then are held and taken first.
@@ -177,7 +177,7 @@ pub fn run(id: u16, links: &mut dyn NodeLinks) -> Result<(), NodeError> {
         }
     };
     let share = *share;
-    let mut node = Node::new(id, &share, links, arrival)?;
+    let mut node = Node::new(id, &share, links, arrival, faults)?;
     for (_, body) in &early {
         node.hold(ray_bytes(body));
     }
@@ -304,9 +304,21 @@ impl PartialEq for Queued {
 
 impl Eq for Queued {}
 
+/// Test-only faults a node is started with (`MachineOptions::fail` and
+/// `stall`): a harness's, not the modelled machine's, so no message
+/// carries them.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Faults {
+    /// Fail after this many paths processed.
+    pub fail_after: Option<u64>,
+    /// Host seconds of CPU to burn after each send.
+    pub stall_on_send: Option<f64>,
+}
+
 struct Node<'a> {
     id: u16,
     share: &'a Share,
+    faults: Faults,
     links: &'a mut dyn NodeLinks,
     tracer: CellTracer<'a>,
     shader: Shader<'a>,
@@ -382,6 +394,7 @@ impl<'a> Node<'a> {
         share: &'a Share,
         links: &'a mut dyn NodeLinks,
         clock: f64,
+        faults: Faults,
     ) -> Result<Self, NodeError> {
         let d = share.dimension as usize;
         let memory = share_bytes(&share.cells, &share.scene);
@@ -421,6 +434,7 @@ impl<'a> Node<'a> {
         };
         Ok(Node {
             id,
+            faults,
             share,
             links,
             tracer: CellTracer::new(&share.cells, &share.scene),
@@ -971,7 +985,7 @@ impl<'a> Node<'a> {
         let mut held = path.bytes();
         self.paths_processed += 1;
         if self
-            .share
+            .faults
             .fail_after
             .is_some_and(|n| self.paths_processed > n)
         {
@@ -1358,7 +1372,7 @@ impl<'a> Node<'a> {
             }
         }
         // Test-only (`MachineOptions::stall`).
-        if let Some(stall) = self.share.stall_on_send {
+        if let Some(stall) = self.faults.stall_on_send {
             let t0 = Ticks::now();
             while t0.elapsed() < stall {
                 std::hint::spin_loop();

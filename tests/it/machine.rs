@@ -891,7 +891,7 @@ fn copies_keep_within_twice_the_single_structure_and_half_the_window() {
             let plain = Plan::new(&scene, &topo(d), &o).unwrap();
             o.replicas = Replicas::Auto;
             let with = Plan::new(&scene, &topo(d), &o).unwrap();
-            let held = |p: &Plan| p.shares.iter().map(|(c, _)| c.bytes() as u64).sum::<u64>();
+            let held = |p: &Plan| p.node_shares().map(|(c, _)| c.bytes() as u64).sum::<u64>();
             let how = format!("{}, d = {d}", path.display());
             assert!(
                 held(&with) <= (2 * single).max(held(&plain)),
@@ -936,6 +936,11 @@ fn whole_replicas_send_no_ray_between_nodes_and_give_one_nodes_image() {
                 let mut o = MachineOptions::new(w, h, 1);
                 o.replicas = Replicas::Whole;
                 let plan = machine::host::Plan::new(&scene, &topo(d), &o).unwrap();
+                // One share for all, given to every node.
+                assert_eq!(plan.node_shares().count(), 1 << d, "{how}");
+                for (i, (c, _)) in plan.node_shares().enumerate() {
+                    assert_eq!(c.bytes() as u64, whole, "{how}: node {i}'s planned share");
+                }
                 for n in &s.per_node {
                     assert_eq!(n.structure_bytes, whole, "{how}: node {}", n.node);
                     assert_eq!(n.paths_forwarded, 0, "{how}: node {}", n.node);
