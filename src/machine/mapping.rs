@@ -39,11 +39,9 @@ pub enum Mapping {
 }
 
 impl Mapping {
-    pub fn name(self) -> &'static str {
-        match self {
-            Mapping::Balanced => "balanced",
-            Mapping::EqualArea => "equal-area",
-        }
+    /// The name `--mapping` takes.
+    pub fn name(self) -> String {
+        super::value_name(self)
     }
 }
 

@@ -34,6 +34,15 @@ pub use mapping::Mapping;
 pub use replicas::Replicas;
 pub use topology::{Topology, parse_size};
 
+/// The name a command-line option takes for `v`, as clap derives it from
+/// the variant, so that reports name a choice as the user types it.
+fn value_name(v: impl clap::ValueEnum) -> String {
+    v.to_possible_value()
+        .expect("no variant of the machine's options is skipped")
+        .get_name()
+        .to_owned()
+}
+
 /// The largest of `v` against their mean, the imbalance of per-node loads
 /// (busy time, estimated or counted work); 1 for none or all zero.
 pub fn max_over_mean(v: impl IntoIterator<Item = f64>) -> f64 {
@@ -47,5 +56,25 @@ pub fn max_over_mean(v: impl IntoIterator<Item = f64>) -> f64 {
         1.0
     } else {
         max / (sum / n as f64)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::ValueEnum;
+
+    /// Reports (`--stats`, `scale`'s plot titles) name each choice as the
+    /// command line takes it, and `scale` passes it back to `render`.
+    #[test]
+    fn choices_are_named_as_the_command_line_takes_them() {
+        assert_eq!(Mapping::EqualArea.name(), "equal-area");
+        assert_eq!(Replicas::Whole.name(), "whole");
+        for m in Mapping::value_variants() {
+            assert_eq!(Mapping::from_str(&m.name(), false), Ok(*m));
+        }
+        for r in Replicas::value_variants() {
+            assert_eq!(Replicas::from_str(&r.name(), false), Ok(*r));
+        }
     }
 }

@@ -57,12 +57,9 @@ pub enum Replicas {
 }
 
 impl Replicas {
-    pub fn name(self) -> &'static str {
-        match self {
-            Replicas::Auto => "auto",
-            Replicas::None => "none",
-            Replicas::Whole => "whole",
-        }
+    /// The name `--replicas` takes.
+    pub fn name(self) -> String {
+        super::value_name(self)
     }
 }
 
