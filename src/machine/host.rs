@@ -788,7 +788,7 @@ fn run_pass(
         compute_speed: topo.compute_speed,
     };
     let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
-    let lag_slices = super::node::lag_slices(n, cores);
+    let pacing = super::node::Pacing::for_host(n, cores);
     let (mut host, node_links) = channels(d, opts.capacity);
     // The nodes' stopwatch is measured once per process, here rather than
     // in some node's first slice.
@@ -826,7 +826,7 @@ fn run_pass(
                 local_credits: plan.local_credits(),
                 budget: topo.node_memory,
                 link: model,
-                lag_slices,
+                pacing,
             };
             encode_stamped(&ToNode::Load(Box::new(share)), |_| 0.0).map_err(Error::Render)
         };

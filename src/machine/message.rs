@@ -111,10 +111,10 @@ pub struct Share {
     pub budget: u64,
     /// The modelled machine's costs, for the node's virtual clock.
     pub link: LinkModel,
-    /// How far (in slices of work) the node's clock may run ahead of its
-    /// neighbours': an emulation parameter of the host's threads, not of
-    /// the modelled machine (`node::lag_slices`).
-    pub lag_slices: f64,
+    /// How the node keeps pace with the others on this host (`node::Pacing`):
+    /// an emulation parameter of the host's threads, not of the modelled
+    /// machine.
+    pub pacing: super::node::Pacing,
 }
 
 /// The topology's cost model of computing and communicating.

@@ -85,7 +85,7 @@ const DONE_WAIT: f64 = 64.0;
 ///
 /// The lag is a delay the model adds: a path sent to a node that is ahead
 /// is taken up to the lag late. How far threads drift apart depends on how
-/// many share a core (`lag_slices`): with many nodes per core (32 on 2),
+/// many share a core (`Pacing::for_host`): with many nodes per core (32 on 2),
 /// one slice, measured on the sphereflake at 1024x1024 (two runs each): 4
 /// slices gave 5,500 virtual seconds on the iPSC-D5, 1 slice 4,260, a
 /// quarter slice 3,660; wall time 4.45 s, 4.46 s and 5.5 s at d = 5.
@@ -96,8 +96,14 @@ const LAG_SLICES: f64 = 1.0;
 /// preemption. Sphereflake at 1024x1024, d = 1 on 2 cores, two runs each:
 /// 8 slices gave 3.33-3.45 s wall and 36,000-36,300 virtual seconds, 1
 /// slice 4.08-4.39 s and 37,600-38,800 (at d = 5, 8 slices gave 6,600-8,100
-/// virtual seconds against 5,600-5,700 for one).
-const LAG_SLICES_OWN_CORE: f64 = 8.0;
+/// virtual seconds against 5,600-5,700 for one). Later, with the host's
+/// link coalesced less (`HOST_COALESCE_OWN_CORE`), three interleaved
+/// rounds: 8 slices 1.065-1.091 s, 32 slices 1.043-1.065 s, 64 slices
+/// 1.034-1.046 s, the virtual seconds the same (13,450-13,700); with
+/// 8 slices each node waited 0.03-0.06 s for the other.
+const LAG_SLICES_OWN_CORE: f64 = 32.0;
+/// The most slices of lag when nodes share cores (`Pacing::for_host`).
+const LAG_SLICES_SHARED: f64 = 8.0;
 /// Host time a node works between two looks at its links and its
 /// neighbours' clocks (`LAG_SLICES`).
 const SLICE: f64 = 25e-6;
@@ -116,14 +122,47 @@ const CPU_WINDOW: f64 = 100e-6;
 /// nodes, wakes a few thousand times a second instead of once per slice
 /// of every node.
 const HOST_COALESCE: f64 = 500e-6;
+/// `HOST_COALESCE` when every node has a core of its own. A node's credits
+/// come back through the host: at d = 1 on the sphereflake a window was
+/// 135 paths, some 230 µs of a node's work, less than the 500 µs its
+/// records waited, and a node whose paths finished on the other node ran
+/// out of credit and idled 0.05-0.06 s of its 1 s. At 100 µs: 0.01-0.02 s,
+/// the render 1.065-1.091 s against 1.104-1.187 s, and 13,450-13,700
+/// virtual seconds against 13,730-14,840 (three interleaved rounds; 50 µs
+/// and 200 µs were no better). With many nodes a core the host would wake
+/// for each, and 100 µs made d = 5 no faster (2.99-3.04 s against
+/// 2.98-3.03 s).
+const HOST_COALESCE_OWN_CORE: f64 = 100e-6;
 
-/// Slices of work a node may run ahead of its neighbours (`LAG_SLICES`)
-/// when `nodes` node threads share `cores` cores: from one slice when four
-/// or more share a core, to `LAG_SLICES_OWN_CORE` when each has its own.
-/// Emulation only: it changes when threads wait, never the image.
-pub fn lag_slices(nodes: usize, cores: usize) -> f64 {
-    let per_core = nodes as f64 / cores.max(1) as f64;
-    (LAG_SLICES_OWN_CORE / per_core).clamp(LAG_SLICES, LAG_SLICES_OWN_CORE)
+/// How the node threads keep pace on this host when `nodes` of them share
+/// `cores` cores: how far a node's clock may run ahead of its neighbours'
+/// (`LAG_SLICES`), and how long its messages for the host may gather
+/// (`HOST_COALESCE`). Emulation only: they change when threads wait and
+/// when the host hears of finished work, never the image.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Pacing {
+    /// Slices of work a node may run ahead of its neighbours: from one
+    /// when four or more share a core, to `LAG_SLICES_SHARED` when two
+    /// do, and `LAG_SLICES_OWN_CORE` when each has its own.
+    pub lag_slices: f64,
+    /// Host seconds the messages for the host may gather.
+    pub host_coalesce: f64,
+}
+
+impl Pacing {
+    pub fn for_host(nodes: usize, cores: usize) -> Pacing {
+        let per_core = nodes as f64 / cores.max(1) as f64;
+        if per_core <= 1.0 {
+            return Pacing {
+                lag_slices: LAG_SLICES_OWN_CORE,
+                host_coalesce: HOST_COALESCE_OWN_CORE,
+            };
+        }
+        Pacing {
+            lag_slices: (LAG_SLICES_SHARED / per_core).clamp(LAG_SLICES, LAG_SLICES_SHARED),
+            host_coalesce: HOST_COALESCE,
+        }
+    }
 }
 
 /// The bytes a node's share occupies once loaded: the structure, the
@@ -566,9 +605,9 @@ impl<'a> Node<'a> {
     }
 
     /// The most virtual time a node may run ahead of a neighbour: a few
-    /// slices of its work (`Share::lag_slices`).
+    /// slices of its work (`Pacing::lag_slices`).
     fn lag(&self) -> f64 {
-        self.share.lag_slices * SLICE / self.model.compute_speed
+        self.share.pacing.lag_slices * SLICE / self.model.compute_speed
     }
 
     /// Whether the node is so far ahead of a neighbour, in virtual time,
@@ -1337,7 +1376,7 @@ impl<'a> Node<'a> {
                 continue;
             }
             if i == host && !all {
-                if self.host_flushed.elapsed() < HOST_COALESCE {
+                if self.host_flushed.elapsed() < self.share.pacing.host_coalesce {
                     continue;
                 }
                 self.host_flushed = Ticks::now();
@@ -1569,5 +1608,29 @@ mod tests {
                 assert_eq!(order(&ours), order(&sorted), "code {code} of {n} rays");
             }
         }
+    }
+
+    /// Nodes with a core each keep the long lag and the short coalescing
+    /// (the threads drift only when preempted, and credits must come back
+    /// quickly); nodes sharing cores get a lag that shrinks to one slice
+    /// as more share one, and the long coalescing.
+    #[test]
+    fn pacing_follows_the_nodes_per_core() {
+        for (nodes, cores) in [(1, 2), (2, 2), (4, 4), (1, 1)] {
+            let p = Pacing::for_host(nodes, cores);
+            assert_eq!(p.lag_slices, LAG_SLICES_OWN_CORE, "{nodes} on {cores}");
+            assert_eq!(
+                p.host_coalesce, HOST_COALESCE_OWN_CORE,
+                "{nodes} on {cores}"
+            );
+        }
+        let lag = |nodes, cores| Pacing::for_host(nodes, cores).lag_slices;
+        assert_eq!(lag(4, 2), LAG_SLICES_SHARED / 2.0);
+        assert_eq!(lag(32, 2), LAG_SLICES);
+        assert_eq!(lag(1024, 2), LAG_SLICES);
+        assert!(lag(8, 2) <= lag(4, 2));
+        assert_eq!(Pacing::for_host(32, 2).host_coalesce, HOST_COALESCE);
+        // No cores reported counts as one.
+        assert_eq!(Pacing::for_host(2, 0), Pacing::for_host(2, 1));
     }
 }
