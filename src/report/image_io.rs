@@ -69,11 +69,11 @@ pub fn to_display(linear: &[[f32; 3]]) -> Vec<[f32; 3]> {
 pub fn to_srgb8(linear: &[[f32; 3]]) -> Vec<u8> {
     let table = Srgb8::get();
     let mut out = vec![0u8; linear.len() * 3];
-    for (o, p) in out.chunks_exact_mut(3).zip(linear) {
+    crate::trace::map_parallel(linear, &mut out, 3, |p, o| {
         for (o, &c) in o.iter_mut().zip(p) {
             *o = table.byte(c);
         }
-    }
+    });
     out
 }
 

@@ -35,6 +35,58 @@ pub fn prefault<T: Default + PartialEq>(v: &mut [T]) {
     }
 }
 
+/// Sets `out[per·i .. per·(i + 1)]` by `f(&input[i], ..)` for every `i`,
+/// over the host's cores where `input` is an image's worth (an image's
+/// conversions after a render, when nothing else runs: a megapixel took
+/// 7 ms to make linear and 9 ms to make sRGB bytes on one thread). Each
+/// element is mapped alone, so the result is the same on any number of
+/// threads; where the OS refuses a thread, the rest is done here.
+pub fn map_parallel<T: Sync, U: Send>(
+    input: &[T],
+    out: &mut [U],
+    per: usize,
+    f: impl Fn(&T, &mut [U]) + Sync,
+) {
+    assert_eq!(out.len(), input.len() * per, "map_parallel: output size");
+    let each = |input: &[T], out: &mut [U]| {
+        for (x, o) in input.iter().zip(out.chunks_exact_mut(per.max(1))) {
+            f(x, o);
+        }
+    };
+    const PARALLEL_FROM: usize = 1 << 16;
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    if input.len() < PARALLEL_FROM || threads < 2 || per == 0 {
+        return each(input, out);
+    }
+    let chunk = input.len().div_ceil(threads);
+    // Each part in a slot its thread takes it from, so that a part whose
+    // thread the OS refuses is still there to do here.
+    type Part<'a, T, U> = std::sync::Mutex<Option<(&'a [T], &'a mut [U])>>;
+    let parts: Vec<Part<T, U>> = input
+        .chunks(chunk)
+        .zip(out.chunks_mut(chunk * per))
+        .map(|p| std::sync::Mutex::new(Some(p)))
+        .collect();
+    let run = |part: &Part<T, U>| {
+        let taken = part.lock().map_or(None, |mut p| p.take());
+        if let Some((i, o)) = taken {
+            each(i, o);
+        }
+    };
+    std::thread::scope(|s| {
+        for part in &parts[1..] {
+            let run = &run;
+            // Refused: done below.
+            let _ = std::thread::Builder::new()
+                .name("hypercast-image".into())
+                .spawn_scoped(s, move || run(part));
+        }
+        for part in &parts {
+            run(part);
+        }
+    });
+}
+
 /// A band of image rows `[y0, y0 + rows)` with fixed-point RGB sums.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Film {
@@ -112,16 +164,11 @@ impl Film {
 
     /// Linear RGB of every pixel of the band, row-major.
     pub fn to_linear(&self) -> Vec<[f32; 3]> {
-        self.sums
-            .iter()
-            .map(|s| {
-                [
-                    (s[0] as f64 / SCALE) as f32,
-                    (s[1] as f64 / SCALE) as f32,
-                    (s[2] as f64 / SCALE) as f32,
-                ]
-            })
-            .collect()
+        let mut out = vec![[0.0; 3]; self.sums.len()];
+        map_parallel(&self.sums, &mut out, 1, |s, o| {
+            o[0] = s.map(|v| (v as f64 / SCALE) as f32);
+        });
+        out
     }
 
     /// The raw fixed-point sums, for exact comparisons in tests.
@@ -189,6 +236,34 @@ mod rounding_tests {
         }
         for x in xs {
             assert_eq!(round_to_i64(x), x.round() as i64, "{x:e}");
+        }
+    }
+}
+
+#[cfg(test)]
+mod map_tests {
+    use super::map_parallel;
+
+    /// Every element mapped once, in place, as a plain loop maps it: for
+    /// inputs below and above the size that goes to threads, and with
+    /// several outputs per element.
+    #[test]
+    fn maps_every_element_as_a_loop_does() {
+        for n in [0usize, 1, 1000, (1 << 16) - 1, 1 << 16, 300_001] {
+            let input: Vec<u64> = (0..n as u64).map(|i| i.wrapping_mul(0x9e37_79b9)).collect();
+            let mut out = vec![0u64; 3 * n];
+            map_parallel(&input, &mut out, 3, |x, o| {
+                o[0] = *x;
+                o[1] = x ^ 1;
+                o[2] = x.rotate_left(7);
+            });
+            for (i, x) in input.iter().enumerate() {
+                assert_eq!(
+                    &out[3 * i..3 * i + 3],
+                    &[*x, x ^ 1, x.rotate_left(7)],
+                    "n = {n}"
+                );
+            }
         }
     }
 }
