@@ -99,9 +99,14 @@ const LAG_SLICES: f64 = 1.0;
 /// virtual seconds against 5,600-5,700 for one). Later, with the host's
 /// link coalesced less (`HOST_COALESCE_OWN_CORE`), three interleaved
 /// rounds: 8 slices 1.065-1.091 s, 32 slices 1.043-1.065 s, 64 slices
-/// 1.034-1.046 s, the virtual seconds the same (13,450-13,700); with
-/// 8 slices each node waited 0.03-0.06 s for the other.
-const LAG_SLICES_OWN_CORE: f64 = 32.0;
+/// 1.034-1.046 s, the virtual seconds the same (13,450-13,700; 128 slices
+/// raised them by 2-3%); with 8 slices each node waited 0.03-0.06 s for
+/// the other. 64 against 32 again, at 1024x1024, processes of six and
+/// renders of four interleaved rounds: the sphereflake 1.06-1.07 s
+/// against 1.07-1.09 s, the jagged ball 0.392-0.396 s against 0.399-0.408
+/// s, the house 1.236-1.245 s against 1.261-1.267 s, virtual seconds the
+/// same.
+const LAG_SLICES_OWN_CORE: f64 = 64.0;
 /// The most slices of lag when nodes share cores (`Pacing::for_host`).
 const LAG_SLICES_SHARED: f64 = 8.0;
 /// Host time a node works between two looks at its links and its
