@@ -146,9 +146,11 @@ const HOST_COALESCE_OWN_CORE: f64 = 100e-6;
 /// when the host hears of finished work, never the image.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Pacing {
-    /// Slices of work a node may run ahead of its neighbours: from one
-    /// when four or more share a core, to `LAG_SLICES_SHARED` when two
-    /// do, and `LAG_SLICES_OWN_CORE` when each has its own.
+    /// Slices of work a node may run ahead of its neighbours: where nodes
+    /// share cores, `LAG_SLICES_SHARED` over the nodes a core holds, at
+    /// least `LAG_SLICES` (4 for two a core, as at d = 2 on two cores; one
+    /// from eight a core, as at d = 4 and 5); `LAG_SLICES_OWN_CORE` where
+    /// each has its own.
     pub lag_slices: f64,
     /// Host seconds the messages for the host may gather.
     pub host_coalesce: f64,
