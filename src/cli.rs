@@ -972,7 +972,7 @@ fn run_scale(a: ScaleArgs) -> Result<()> {
     if opts.replicas != machine::Replicas::default() {
         modes += &format!(", --replicas {}", opts.replicas.name());
     }
-    if opts.mapping != Mapping::Balanced {
+    if opts.mapping != Mapping::default() {
         modes += &format!(", --mapping {}", opts.mapping.name());
     }
     let title = format!(

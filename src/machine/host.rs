@@ -287,6 +287,12 @@ pub struct Plan {
     pub whole: bool,
 }
 
+/// Which of a plan's distinct shares node `node` gets: the one for all
+/// where every node holds the whole scene (`Plan::whole`), else its own.
+fn share_index(whole: bool, node: usize) -> usize {
+    if whole { 0 } else { node }
+}
+
 /// How much the machine adds to the paper's subdivision for its balance
 /// (`Plan::new`): more super cells than the cost model makes, so that the
 /// mapping has pieces to balance with (`SUPER_CELLS_PER_NODE`), and heavy
@@ -572,7 +578,7 @@ impl Plan {
         let prepass_seconds = t_pre.elapsed().as_secs_f64();
         let share_bytes: Vec<u64> = (0..n)
             .map(|i| {
-                let (c, s) = &shares[if whole { 0 } else { i }];
+                let (c, s) = &shares[share_index(whole, i)];
                 node::share_bytes(c, s)
             })
             .collect();
@@ -597,12 +603,16 @@ impl Plan {
 
     /// Node `node`'s structure and scene.
     pub fn share(&self, node: usize) -> &(CellStructure, Scene) {
-        &self.shares[self.share_index(node)]
+        &self.shares[share_index(self.whole, node)]
     }
 
-    /// Which of the distinct shares node `node` gets.
-    fn share_index(&self, node: usize) -> usize {
-        if self.whole { 0 } else { node }
+    /// The nodes that get distinct share `k`, in order.
+    fn nodes_of_share(&self, k: usize) -> std::ops::Range<usize> {
+        if self.whole {
+            0..self.share_bytes.len()
+        } else {
+            k..k + 1
+        }
     }
 
     /// Every node's share (`share`), in node order.
@@ -831,25 +841,28 @@ fn run_pass(
             encode_stamped(&ToNode::Load(Box::new(share)), |_| 0.0).map_err(Error::Render)
         };
         let mut loaded = Ok(());
-        // The last share encoded: its index, bytes and frame length.
-        let mut last: Option<(usize, Vec<u8>, FrameLen)> = None;
-        for i in 0..n {
-            let k = plan.share_index(i);
-            let frame = match last.take() {
-                Some(same) if same.0 == k => Ok(same),
-                _ => encode(plan.share(i)).map(|(bytes, len)| (k, bytes, len)),
+        'load: for (k, share) in plan.shares.iter().enumerate() {
+            let (mut bytes, len) = match encode(share) {
+                Ok(frame) => frame,
+                Err(e) => {
+                    loaded = Err(e);
+                    break;
+                }
             };
-            let sent = frame.and_then(|(k, bytes, len)| {
-                let sent = run.send_frame(&mut host, i as u16, bytes.clone(), len);
-                last = Some((k, bytes, len));
-                sent
-            });
-            if let Err(e) = sent {
-                loaded = Err(e);
-                break;
+            let nodes = plan.nodes_of_share(k);
+            for i in nodes.clone() {
+                // The last of its nodes takes the encoded bytes themselves.
+                let copy = if i + 1 == nodes.end {
+                    std::mem::take(&mut bytes)
+                } else {
+                    bytes.clone()
+                };
+                if let Err(e) = run.send_frame(&mut host, i as u16, copy, len) {
+                    loaded = Err(e);
+                    break 'load;
+                }
             }
         }
-        drop(last);
         match loaded {
             Ok(()) => run.collect(&mut host, progress),
             Err(e) => {
