@@ -68,7 +68,12 @@ pub fn map_parallel<T: Sync, U: Send>(
         .map(|p| std::sync::Mutex::new(Some(p)))
         .collect();
     let run = |part: &Part<T, U>| {
-        let taken = part.lock().map_or(None, |mut p| p.take());
+        // A lock is held only to take the part, which cannot panic; were
+        // it poisoned, the part is still taken rather than left undone.
+        let taken = part
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .take();
         if let Some((i, o)) = taken {
             each(i, o);
         }
