@@ -1017,11 +1017,16 @@ impl<'a> CellTracer<'a> {
     /// crossings per primitive, an operator mailbox per scene node, and a
     /// shadow cache entry per light.
     pub fn bytes_for(cs: &CellStructure, scene: &Scene) -> usize {
-        use std::mem::size_of;
-        scene.primitives.len() * (size_of::<Mailbox>() + size_of::<PrimHits>())
-            + cs.origin_count * (size_of::<u64>() + size_of::<bool>())
-            + scene.lights.len() * size_of::<Option<u32>>()
+        scene.primitives.len() * Self::BYTES_PER_PRIMITIVE
+            + cs.origin_count * Self::BYTES_PER_ORIGIN
+            + scene.lights.len() * std::mem::size_of::<Option<u32>>()
     }
+
+    /// A tracer's bytes per primitive of its scene and per operator
+    /// mailbox of its structure (`bytes_for`).
+    pub const BYTES_PER_PRIMITIVE: usize =
+        std::mem::size_of::<Mailbox>() + std::mem::size_of::<PrimHits>();
+    pub const BYTES_PER_ORIGIN: usize = std::mem::size_of::<u64>() + std::mem::size_of::<bool>();
 
     /// Starts recording, per super cell of each region, the work done in
     /// its cells (a cell entered counts `CELL_WORK`, an intersection test

@@ -176,17 +176,18 @@ impl Pacing {
 /// primitives, and the tracer's per-primitive and per-operator mailboxes.
 pub fn share_bytes(cells: &CellStructure, scene: &Scene) -> u64 {
     use std::mem::size_of;
-    let prims: usize = scene
-        .primitives
-        .iter()
-        .map(|p| size_of::<crate::csg::Primitive>() + p.heap_bytes())
-        .sum();
+    let prims: usize = scene.primitives.iter().map(primitive_bytes).sum();
     let tracer = CellTracer::bytes_for(cells, scene);
     (cells.bytes()
         + prims
         + scene.materials.len() * size_of::<crate::scene::Material>()
         + scene.lights.len() * size_of::<crate::scene::Light>()
         + tracer) as u64
+}
+
+/// The bytes a node holds for one primitive of its scene.
+pub fn primitive_bytes(p: &crate::csg::Primitive) -> usize {
+    std::mem::size_of::<crate::csg::Primitive>() + p.heap_bytes()
 }
 
 /// Why a node stopped early.

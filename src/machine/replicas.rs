@@ -34,8 +34,10 @@
 
 use std::collections::BTreeMap;
 
-use crate::cells::share::CellHulls;
+use crate::cells::share::{CellHulls, ShareGrowth, Tally};
+use crate::cells::traverse::CellTracer;
 use crate::cells::{CellStructure, Copies, Move, Region};
+use crate::machine::node;
 use crate::scene::Scene;
 
 /// Whether nodes hold copies of other nodes' super cells.
@@ -132,115 +134,98 @@ fn leaves_in(cells: &CellStructure, r: Region, s: u32) -> u64 {
         .sum()
 }
 
-/// Node `node`'s share with copies of a prefix of `wanted` (its own
-/// share is `own`), as long as `slack` of it stays at or above zero (the
-/// least room its limits leave, in bytes: the module header's; negative
-/// past them), and that prefix's length: about the longest that fits,
-/// found by interpolating the slack between a prefix that fits and one
-/// that does not (all of `wanted`, whose share's size is `all`), a
-/// restriction a try (0.2-2 ms each on the sphereflake). None: its own.
-#[allow(clippy::too_many_arguments)]
+/// Node `node`'s share with copies of the longest prefix of `wanted`
+/// for which `slack` stays at or above zero (the least room its limits
+/// leave, in bytes: the module header's; negative past them), and that
+/// prefix's length; None where no prefix does (or the empty one: its own
+/// share, `own`). Every prefix's size is tallied (`ShareGrowth`) from
+/// its own share's, and only the one kept is made.
 pub fn share_with_copies(
     m: &Machine,
     owner: &[Vec<u16>; 2],
     node: usize,
     wanted: &[(usize, u32)],
     own: &NodeShare,
-    all: Size,
     slack: &dyn Fn(Size) -> f64,
 ) -> (Option<NodeShare>, usize) {
-    let share = |k: usize| {
-        let mut held = Region::BOTH.map(|r| vec![false; m.cells.region(r).supers.len()]);
-        for &(r, s) in &wanted[..k] {
-            held[r][s as usize] = true;
+    let held = |r: Region, s: u32| owner[r as usize][s as usize] as usize == node;
+    let mut growth = ShareGrowth::new(m.cells, &held);
+    let sizes = Sizes::new(m.whole, Size::of(own), growth.tally());
+    let mut added_prims = 0;
+    let (mut longest, mut size) = (0, None);
+    for (k, &(r, s)) in wanted.iter().enumerate() {
+        growth.hold(Region::BOTH[r], s, &mut |p| {
+            added_prims += sizes.primitive(p)
+        });
+        let at = sizes.of(growth.tally(), added_prims);
+        if slack(at) >= 0.0 {
+            (longest, size) = (k + 1, Some(at));
         }
-        m.cells.restrict_with(
-            m.scene,
-            &|r, s| owner[r as usize][s as usize] as usize == node || held[r as usize][s as usize],
-            m.hulls,
-        )
-    };
-    if slack(all) >= 0.0 {
-        return (Some(share(wanted.len())), wanted.len());
     }
-    let mut best = None;
-    let k = longest_fit(wanted.len(), (slack(Size::of(own)), slack(all)), |k| {
-        let s = share(k);
-        let sl = slack(Size::of(&s));
-        if sl >= 0.0 {
-            best = Some(s);
-        }
-        sl
-    });
-    (best, k)
+    if longest == 0 {
+        return (None, 0);
+    }
+    let mut copied = Region::BOTH.map(|r| vec![false; m.cells.region(r).supers.len()]);
+    for &(r, s) in &wanted[..longest] {
+        copied[r][s as usize] = true;
+    }
+    let share = m.cells.restrict_with(
+        m.scene,
+        &|r, s| held(r, s) || copied[r as usize][s as usize],
+        m.hulls,
+    );
+    debug_assert_eq!(Some(Size::of(&share)), size, "the tally is the share's");
+    (Some(share), longest)
 }
 
-/// About the longest prefix, of `len`, whose slack (`slack_at(k)`, at or
-/// above zero where it fits) fits, where the empty one has slack `lo` and
-/// the whole one `hi`: by interpolating the slack between a prefix that
-/// fits and one that does not (it falls about evenly per element), or
-/// by halving it where a try did not halve it, at most `SEARCH_TRIES`
-/// tries. The last try that fits is the one returned
-/// (0 if none). The Illinois rule: where one end moves twice in a row,
-/// the other's weight is halved, or the guesses creep towards the end
-/// that stays (they did, from the end that did not fit: five tries
-/// without a fit, where 106 of 238 copies fitted).
-fn longest_fit(
-    len: usize,
-    (lo_slack, hi_slack): (f64, f64),
-    mut slack_at: impl FnMut(usize) -> f64,
-) -> usize {
-    if lo_slack < 0.0 {
-        return 0;
-    }
-    if hi_slack >= 0.0 {
-        return len;
-    }
-    let (mut lo, mut hi) = (0, len);
-    let (mut lo_weight, mut hi_weight) = (lo_slack, hi_slack);
-    let mut last_fit = None;
-    // Whether the last try halved the interval; if not (a slack that
-    // falls in steps, flat between them), the next one bisects.
-    let mut halved = true;
-    for _ in 0..SEARCH_TRIES {
-        if hi - lo <= 1 {
-            break;
-        }
-        let width = hi - lo;
-        let k = if halved {
-            let f = lo_weight / (lo_weight - hi_weight);
-            lo + ((width as f64 * f).floor() as usize).clamp(1, width - 1)
-        } else {
-            lo + width / 2
-        };
-        let sl = slack_at(k);
-        let fit = sl >= 0.0;
-        if fit {
-            lo = k;
-            lo_weight = sl;
-            if last_fit == Some(true) {
-                hi_weight /= 2.0;
-            }
-        } else {
-            hi = k;
-            hi_weight = sl;
-            if last_fit == Some(false) {
-                lo_weight /= 2.0;
-            }
-        }
-        last_fit = Some(fit);
-        halved = 2 * (hi - lo) <= width;
-    }
-    lo
+/// A share's `Size` from its tally (`ShareGrowth`), by the difference
+/// from a share of the same structure whose size and tally are known.
+struct Sizes {
+    base: Size,
+    tally: Tally,
+    /// Per global primitive number, its bytes on a node (from the share of
+    /// the whole structure, whose primitives are clones as every share's
+    /// are).
+    primitive: Vec<usize>,
 }
 
-/// Restrictions `share_with_copies` tries at most: the prefix it keeps
-/// may then be a little shorter than the longest.
-const SEARCH_TRIES: usize = 8;
+impl Sizes {
+    fn new((cells, scene): &NodeShare, base: Size, tally: Tally) -> Sizes {
+        let ids = &cells.primitive_ids;
+        let mut primitive = vec![0; ids.iter().map(|&g| g as usize + 1).max().unwrap_or(0)];
+        for (&g, p) in ids.iter().zip(&scene.primitives) {
+            primitive[g as usize] = node::primitive_bytes(p);
+        }
+        Sizes {
+            base,
+            tally,
+            primitive,
+        }
+    }
+
+    fn primitive(&self, global: u32) -> usize {
+        self.primitive[global as usize]
+    }
+
+    /// The size of a share with tally `t` whose primitives beyond the
+    /// base's take `added_prims` bytes.
+    fn of(&self, t: Tally, added_prims: usize) -> Size {
+        let (b, base) = (&self.tally, self.base);
+        let delta = |now: usize, then: usize| now as i64 - then as i64;
+        let structure = delta(t.structure_bytes(), b.structure_bytes());
+        let tracer = delta(t.prims, b.prims) * CellTracer::BYTES_PER_PRIMITIVE as i64
+            + delta(t.origins, b.origins) * CellTracer::BYTES_PER_ORIGIN as i64;
+        let add = |v: u64, d: i64| (v as i64 + d) as u64;
+        Size {
+            structure: add(base.structure, structure),
+            node: add(base.node, structure + tracer + added_prims as i64),
+        }
+    }
+}
 
 /// A share's bytes on its node (`node::share_bytes`) and its structure's
 /// (`CellStructure::bytes`).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Size {
     pub node: u64,
     pub structure: u64,
@@ -392,7 +377,7 @@ fn choose(
         let (share, k) = if slack(all) >= 0.0 {
             (Some(m.whole.clone()), wanted[i].len())
         } else {
-            share_with_copies(m, owner, i, &wanted[i], &shares[i], all, &slack)
+            share_with_copies(m, owner, i, &wanted[i], &shares[i], &slack)
         };
         if let Some(share) = share {
             shares[i] = share;
@@ -418,50 +403,83 @@ mod tests {
     use crate::cells::CellOptions;
     use crate::scene::load::compile_model;
 
-    /// The search's interpolation on slacks that fall evenly, early (the
-    /// largest copies first) or late, and in steps: the prefix it keeps
-    /// fits, and is the longest that does or within 2 of it, in at most
-    /// `SEARCH_TRIES` tries. (Interpolating alone crept down from the end
-    /// that did not fit: on the sphereflake it kept none of 238 copies
-    /// where 106 fitted.)
+    /// Every prefix's size, made by restricting the structure, against
+    /// the tally's (`ShareGrowth`, `Sizes`): the sizes the copies are
+    /// placed by are the shares' own, or a node could be given more than
+    /// fits it. On the sphereflake and on random CSG scenes (primitives
+    /// shared by many cells, operators, polygons), every super cell in a
+    /// random order after a random owner's.
     #[test]
-    fn the_interpolation_finds_nearly_the_longest_fit() {
-        let len = 238;
-        // What the first fraction x of the prefixes takes of the room.
-        type Cost = fn(f64) -> f64;
-        let curves: [(&str, Cost); 4] = [
-            ("even", |x| x),
-            ("early", |x| x.sqrt()),
-            ("late", |x| x * x * x),
-            ("steps", |x| (x * 12.0).floor() / 12.0),
-        ];
-        for (name, cost) in curves {
-            for room in [0.05, 0.2, 0.45, 0.5, 0.8, 0.97] {
-                // Slack: the room left less what the first k take.
-                let slack = |k: usize| room - cost(k as f64 / len as f64);
-                let longest = (0..=len).rev().find(|&k| slack(k) >= 0.0).unwrap();
-                let mut tries = 0;
-                let k = longest_fit(len, (slack(0), slack(len)), |k| {
-                    tries += 1;
-                    slack(k)
-                });
-                assert!(slack(k) >= 0.0, "{name}, room {room}: {k} does not fit");
-                assert!(
-                    k + 2 >= longest,
-                    "{name}, room {room}: kept {k}, {longest} fit"
+    fn every_prefix_is_tallied_at_its_shares_size() {
+        let flake = crate::r#gen::sphereflake::sphereflake(2);
+        let mut models = vec![(flake, 1u64)];
+        for seed in 0..12 {
+            models.push((
+                crate::r#gen::random_csg(seed, 4 + 5 * seed as usize, &Default::default()),
+                seed,
+            ));
+        }
+        for (model, seed) in models {
+            let scene = compile_model(&model, std::path::Path::new("t.ron"))
+                .expect("compiles")
+                .0;
+            let cells = CellStructure::build(&scene, 48, 40, CellOptions::default()).unwrap();
+            let hulls = cells.cell_hulls();
+            let whole = cells.restrict_with(&scene, &|_, _| true, &hulls);
+            let mut rng = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
+            let mut next = move || {
+                rng ^= rng << 13;
+                rng ^= rng >> 7;
+                rng ^= rng << 17;
+                rng
+            };
+            let owner = Region::BOTH.map(|r| {
+                (0..cells.region(r).supers.len())
+                    .map(|_| (next() % 3) as u16)
+                    .collect::<Vec<_>>()
+            });
+            let mut order: Vec<(usize, u32)> = Region::BOTH
+                .iter()
+                .flat_map(|&r| {
+                    (0..cells.region(r).supers.len() as u32).map(move |s| (r as usize, s))
+                })
+                .filter(|&(r, s)| owner[r][s as usize] != 0)
+                .collect();
+            for i in (1..order.len()).rev() {
+                order.swap(i, next() as usize % (i + 1));
+            }
+            let own =
+                cells.restrict_with(&scene, &|r, s| owner[r as usize][s as usize] == 0, &hulls);
+            let held = |r: Region, s: u32| owner[r as usize][s as usize] == 0;
+            let mut growth = ShareGrowth::new(&cells, &held);
+            let sizes = Sizes::new(&whole, Size::of(&own), growth.tally());
+            let mut added = 0;
+            for k in 0..=order.len() {
+                if k > 0 {
+                    let (r, s) = order[k - 1];
+                    growth.hold(Region::BOTH[r], s, &mut |p| added += sizes.primitive(p));
+                }
+                let prefix = &order[..k];
+                let real = Size::of(&cells.restrict_with(
+                    &scene,
+                    &|r, s| held(r, s) || prefix.contains(&(r as usize, s)),
+                    &hulls,
+                ));
+                assert_eq!(
+                    sizes.of(growth.tally(), added),
+                    real,
+                    "seed {seed}: prefix {k} of {}",
+                    order.len()
                 );
-                assert!(tries <= SEARCH_TRIES);
             }
         }
     }
 
-    /// The search keeps a prefix that fits, and not much shorter than the
-    /// longest that does (found here by trying every length), whatever
-    /// share of the room between the node's own share and the whole one
-    /// the limit leaves. (Interpolating without the Illinois rule crept
-    /// down from the end that did not fit, and kept none.)
+    /// The copies kept are the longest prefix that fits (found here by
+    /// making every prefix's share), whatever share of the room between
+    /// the node's own share and the whole one the limit leaves.
     #[test]
-    fn the_search_finds_nearly_the_longest_prefix_that_fits() {
+    fn the_copies_are_the_longest_prefix_that_fits() {
         let model = crate::r#gen::sphereflake::sphereflake(3);
         let scene = compile_model(&model, std::path::Path::new("flake.ron"))
             .expect("compiles")
@@ -484,10 +502,7 @@ mod tests {
             whole: &whole,
             single: whole.0.bytes() as u64,
         };
-        // Largest first: what a copy adds falls along the list, the case
-        // where interpolating creeps.
-        let mut wanted = wanted(&cells, &owner, &[], 2);
-        wanted[0].sort_by_key(|&(r, s)| std::cmp::Reverse(leaves_in(&cells, Region::BOTH[r], s)));
+        let wanted = wanted(&cells, &owner, &[], 2);
         let own = cells.restrict_with(&scene, &|r, s| owner[r as usize][s as usize] == 0, &hulls);
         let sizes: Vec<Size> = (0..=wanted[0].len())
             .map(|k| {
@@ -505,17 +520,12 @@ mod tests {
             let limit = lo + (hi - lo) * tenth / 10;
             let slack = |s: Size| limit as f64 - s.node as f64;
             let longest = sizes.iter().rposition(|s| slack(*s) >= 0.0).unwrap();
-            let (share, k) =
-                share_with_copies(&m, &owner, 0, &wanted[0], &own, Size::of(&whole), &slack);
+            let (share, k) = share_with_copies(&m, &owner, 0, &wanted[0], &own, &slack);
+            assert_eq!(k, longest, "limit {tenth}/10");
             let size = share.as_ref().map_or(Size::of(&own), Size::of);
-            assert!(
-                slack(size) >= 0.0,
-                "limit {tenth}/10: {k} copies do not fit"
-            );
-            assert_eq!(size.node, sizes[k].node, "the share is the prefix's");
-            assert!(
-                k + 2 >= longest,
-                "limit {tenth}/10: {k} copies, {longest} would fit"
+            assert_eq!(
+                size, sizes[k],
+                "limit {tenth}/10: the share is the prefix's"
             );
         }
     }
