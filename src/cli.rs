@@ -575,12 +575,11 @@ fn run_render(a: RenderArgs) -> Result<()> {
         }
     };
     let machine_stats = &out.machine;
-    let linear = out.film.to_linear();
-    report::write_image(&job.output, job.opts.width, job.opts.height, &linear)?;
+    report::write_film(&job.output, &out.film)?;
     let metrics = job
         .reference
         .as_ref()
-        .map(|(_, r)| report::compare(&r.comparable(&linear), &r.pixels));
+        .map(|(_, r)| report::compare(&r.comparable(&out.film.to_linear()), &r.pixels));
     if let Some(p) = &job.stats {
         let mut v = stats_json(&job, &out, metrics.as_ref());
         if let Some(cs) = &out.cells {

@@ -10,4 +10,6 @@ pub mod quality;
 pub mod scale;
 pub mod stats;
 
-pub use image_io::{DisplayImage, ImageMetrics, compare, read_display_image, write_image};
+pub use image_io::{
+    DisplayImage, ImageMetrics, compare, read_display_image, write_film, write_image,
+};

@@ -171,9 +171,14 @@ impl Film {
     pub fn to_linear(&self) -> Vec<[f32; 3]> {
         let mut out = vec![[0.0; 3]; self.sums.len()];
         map_parallel(&self.sums, &mut out, 1, |s, o| {
-            o[0] = s.map(|v| (v as f64 / SCALE) as f32);
+            o[0] = Film::linear(s);
         });
         out
+    }
+
+    /// The linear RGB of a pixel's sums (`to_linear`'s, one pixel).
+    pub fn linear(sums: &[i64; 3]) -> [f32; 3] {
+        sums.map(|v| (v as f64 / SCALE) as f32)
     }
 
     /// The raw fixed-point sums, for exact comparisons in tests.
