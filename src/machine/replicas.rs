@@ -43,18 +43,21 @@ use crate::scene::Scene;
 /// Whether nodes hold copies of other nodes' super cells.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum Replicas {
-    /// Where memory allows, by the pre-pass's moves (default).
+    // The variants' doc comments are `--replicas`'s help: for users.
+    /// Copies of the super cells a node's rays reach most, where memory
+    /// allows (default).
     #[default]
     Auto,
-    /// None: every ray that reaches another node's cell goes there (the
-    /// paper's plan alone; the super cells the mapping asks for are cut
-    /// from the BSP's first level on, `CellOptions::force_from_root`).
+    /// No copies: every ray that reaches another node's cell goes there
+    /// (the paper's plan alone).
+    // The super cells the mapping asks for are then cut from the BSP's
+    // first level on (`CellOptions::force_from_root`).
     None,
-    /// Every node holds the whole structure and scene, so no ray leaves
-    /// the node of its pixel (the scene replicated, the classic
-    /// alternative to the paper's plan; refused where it does not fit a
-    /// node). The super cells still share out the pixels, dealt out by
-    /// their pixels' work (`mapping::map_whole`).
+    /// Every node holds the whole scene, so no ray leaves the node of its
+    /// pixel (the classic alternative to the paper's plan; refused where
+    /// the scene does not fit a node).
+    // The super cells still share out the pixels, dealt out by their
+    // pixels' work (`mapping::map_whole`).
     Whole,
 }
 
