@@ -651,6 +651,33 @@ fn quiet_success_prints_nothing_on_stderr() {
     assert!(!o.stderr.is_empty());
 }
 
+/// A default render that sent paths between nodes although every node
+/// could hold the whole scene says how to render it without them; a
+/// render whose placement the user chose does not.
+#[test]
+fn a_scene_that_fits_every_node_gets_the_whole_scene_hint() {
+    let tmp = tempfile::tempdir().unwrap();
+    let hint = "--replicas whole renders it with no paths between nodes";
+    let house = util::repo("scenes/house.ron");
+    let render = |extra: &[&str]| {
+        let mut args = vec!["render", path_str(&house), "-o", "h.png", "--width", "64"];
+        args.extend_from_slice(&["--height", "48"]);
+        args.extend_from_slice(extra);
+        let o = run(tmp.path(), &args);
+        assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+        stderr(&o)
+    };
+    let default = render(&[]);
+    assert!(default.contains(hint), "{default}");
+    for chosen in ["none", "whole"] {
+        let err = render(&["--replicas", chosen]);
+        assert!(!err.contains(hint), "--replicas {chosen}: {err}");
+    }
+    // Nodes with less than twice the scene's 0.3 MiB get no hint.
+    let err = render(&["--node-memory", "512KiB"]);
+    assert!(!err.contains(hint), "512 KiB nodes: {err}");
+}
+
 /// `--stats` says what a scene does not need, in numbers (issue 5): no
 /// shadow rays without lights, no reflected rays without `reflect`, no
 /// refracted rays without `transmit`, only the pixels that see something
