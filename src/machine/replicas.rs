@@ -39,6 +39,7 @@ use crate::cells::traverse::CellTracer;
 use crate::cells::{CellStructure, Copies, Move, Region};
 use crate::machine::node;
 use crate::scene::Scene;
+use crate::trace::map_parallel_from;
 
 /// Whether nodes hold copies of other nodes' super cells.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum)]
@@ -141,8 +142,8 @@ fn leaves_in(cells: &CellStructure, r: Region, s: u32) -> u64 {
 /// for which `slack` stays at or above zero (the least room its limits
 /// leave, in bytes: the module header's; negative past them), and that
 /// prefix's length; None where no prefix does (or the empty one: its own
-/// share, `own`). Every prefix's size is tallied (`ShareGrowth`) from
-/// its own share's, and only the one kept is made.
+/// share, `own`). Every prefix's size is tallied (`prefix_sizes`), and
+/// only the one kept is made (`share_of_prefix`).
 pub fn share_with_copies(
     m: &Machine,
     owner: &[Vec<u16>; 2],
@@ -151,34 +152,71 @@ pub fn share_with_copies(
     own: &NodeShare,
     slack: &dyn Fn(Size) -> f64,
 ) -> (Option<NodeShare>, usize) {
+    let sizes = prefix_sizes(m, owner, node, wanted, own);
+    match longest_fit(&sizes, slack) {
+        0 => (None, 0),
+        k => (
+            Some(share_of_prefix(m, owner, node, &wanted[..k], sizes[k - 1])),
+            k,
+        ),
+    }
+}
+
+/// The size of node `node`'s share (its own is `own`) with copies of each
+/// prefix of `wanted`: entry `k - 1` for the first `k`. Tallied as the
+/// copies are added one by one (`ShareGrowth`), from its own share's size
+/// by difference; no share is made.
+pub fn prefix_sizes(
+    m: &Machine,
+    owner: &[Vec<u16>; 2],
+    node: usize,
+    wanted: &[(usize, u32)],
+    own: &NodeShare,
+) -> Vec<Size> {
     let held = |r: Region, s: u32| owner[r as usize][s as usize] as usize == node;
     let mut growth = ShareGrowth::new(m.cells, &held);
     let sizes = Sizes::new(m.whole, Size::of(own), growth.tally());
     let mut added_prims = 0;
-    let (mut longest, mut size) = (0, None);
-    for (k, &(r, s)) in wanted.iter().enumerate() {
-        growth.hold(Region::BOTH[r], s, &mut |p| {
-            added_prims += sizes.primitive(p)
-        });
-        let at = sizes.of(growth.tally(), added_prims);
-        if slack(at) >= 0.0 {
-            (longest, size) = (k + 1, Some(at));
-        }
-    }
-    if longest == 0 {
-        return (None, 0);
-    }
-    let mut copied = Region::BOTH.map(|r| vec![false; m.cells.region(r).supers.len()]);
-    for &(r, s) in &wanted[..longest] {
-        copied[r][s as usize] = true;
+    wanted
+        .iter()
+        .map(|&(r, s)| {
+            growth.hold(Region::BOTH[r], s, &mut |p| {
+                added_prims += sizes.primitive(p)
+            });
+            sizes.of(growth.tally(), added_prims)
+        })
+        .collect()
+}
+
+/// The length of the longest prefix whose size (`prefix_sizes`) leaves
+/// `slack` at or above zero; 0 if none does.
+fn longest_fit(sizes: &[Size], slack: &dyn Fn(Size) -> f64) -> usize {
+    sizes
+        .iter()
+        .rposition(|&s| slack(s) >= 0.0)
+        .map_or(0, |k| k + 1)
+}
+
+/// Node `node`'s share with copies of `copied`, whose size was tallied as
+/// `size` (`prefix_sizes`; debug builds check it).
+fn share_of_prefix(
+    m: &Machine,
+    owner: &[Vec<u16>; 2],
+    node: usize,
+    copied: &[(usize, u32)],
+    size: Size,
+) -> NodeShare {
+    let mut held = Region::BOTH.map(|r| vec![false; m.cells.region(r).supers.len()]);
+    for &(r, s) in copied {
+        held[r][s as usize] = true;
     }
     let share = m.cells.restrict_with(
         m.scene,
-        &|r, s| held(r, s) || copied[r as usize][s as usize],
+        &|r, s| owner[r as usize][s as usize] as usize == node || held[r as usize][s as usize],
         m.hulls,
     );
-    debug_assert_eq!(Some(Size::of(&share)), size, "the tally is the share's");
-    (Some(share), longest)
+    debug_assert_eq!(Size::of(&share), size, "the tally is the share's");
+    share
 }
 
 /// A share's `Size` from its tally (`ShareGrowth`), by the difference
@@ -352,9 +390,11 @@ pub fn place(
 /// (`Machine::whole`), so what each would add is known before any
 /// restriction: the room `REPLICA_CAP` leaves over all nodes goes first,
 /// whole, to the nodes that want least (each within an equal part of what
-/// is left), and the others share the rest equally and copy what fits of
-/// it by `share_with_copies`. No share passes `memory` bytes
-/// (`node::share_bytes`).
+/// is left), and the others share the rest equally and copy the longest
+/// prefix of what they want that fits it. No share passes `memory` bytes
+/// (`node::share_bytes`). The sizes of every node's prefixes do not
+/// depend on the room, so they are tallied over the host's cores, as the
+/// shares kept are made; only the room is dealt out node after node.
 fn choose(
     m: &Machine,
     owner: &[Vec<u16>; 2],
@@ -366,6 +406,11 @@ fn choose(
     let wanted = wanted(m.cells, owner, moves, n);
     let own: Vec<Size> = shares.iter().map(Size::of).collect();
     let all = Size::of(m.whole);
+    let nodes: Vec<usize> = (0..n).collect();
+    let mut sizes: Vec<Vec<Size>> = vec![Vec::new(); n];
+    map_parallel_from(&nodes, &mut sizes, 1, 2, |&i, out| {
+        out[0] = prefix_sizes(m, owner, i, &wanted[i], &shares[i]);
+    });
     let held: u64 = own.iter().map(|s| s.structure).sum();
     let mut room = ((REPLICA_CAP * m.single as f64) as u64).saturating_sub(held);
     let mut copied = vec![0; n];
@@ -377,19 +422,37 @@ fn choose(
         let limit = own[i].structure + each;
         let slack =
             |s: Size| (memory as f64 - s.node as f64).min(limit as f64 - s.structure as f64);
-        let (share, k) = if slack(all) >= 0.0 {
-            (Some(m.whole.clone()), wanted[i].len())
+        let (k, size) = if slack(all) >= 0.0 {
+            (wanted[i].len(), all)
         } else {
-            share_with_copies(m, owner, i, &wanted[i], &shares[i], &slack)
+            match longest_fit(&sizes[i], &slack) {
+                0 => (0, own[i]),
+                k => (k, sizes[i][k - 1]),
+            }
         };
-        if let Some(share) = share {
-            shares[i] = share;
-        }
         copied[i] = k;
         // (A copy may leave a structure smaller: a cell held adds its
         // subtree, which the node may hold already, and drops its hull.)
-        let added = (shares[i].0.bytes() as u64).saturating_sub(own[i].structure);
-        room = room.saturating_sub(added);
+        room = room.saturating_sub(size.structure.saturating_sub(own[i].structure));
+    }
+    let mut made: Vec<Option<NodeShare>> = (0..n).map(|_| None).collect();
+    map_parallel_from(&nodes, &mut made, 1, 2, |&i, out| {
+        out[0] = match copied[i] {
+            0 => None,
+            k if k == wanted[i].len() => Some(m.whole.clone()),
+            k => Some(share_of_prefix(
+                m,
+                owner,
+                i,
+                &wanted[i][..k],
+                sizes[i][k - 1],
+            )),
+        };
+    });
+    for (share, made) in shares.iter_mut().zip(made) {
+        if let Some(made) = made {
+            *share = made;
+        }
     }
     let mut copies: Copies = Region::BOTH.map(|r| vec![Vec::new(); m.cells.region(r).supers.len()]);
     for (i, w) in wanted.iter().enumerate() {

@@ -47,15 +47,27 @@ pub fn map_parallel<T: Sync, U: Send>(
     per: usize,
     f: impl Fn(&T, &mut [U]) + Sync,
 ) {
+    map_parallel_from(input, out, per, 1 << 16, f);
+}
+
+/// `map_parallel` over the host's cores from `from` elements on (fewer
+/// are mapped here): 2 for a few heavy elements, such as the nodes'
+/// shares that a machine's plan makes.
+pub fn map_parallel_from<T: Sync, U: Send>(
+    input: &[T],
+    out: &mut [U],
+    per: usize,
+    from: usize,
+    f: impl Fn(&T, &mut [U]) + Sync,
+) {
     assert_eq!(out.len(), input.len() * per, "map_parallel: output size");
     let each = |input: &[T], out: &mut [U]| {
         for (x, o) in input.iter().zip(out.chunks_exact_mut(per.max(1))) {
             f(x, o);
         }
     };
-    const PARALLEL_FROM: usize = 1 << 16;
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    if input.len() < PARALLEL_FROM || threads < 2 || per == 0 {
+    if input.len() < from.max(2) || threads < 2 || per == 0 {
         return each(input, out);
     }
     let chunk = input.len().div_ceil(threads);
@@ -83,7 +95,7 @@ pub fn map_parallel<T: Sync, U: Send>(
             let run = &run;
             // Refused: done below.
             let _ = std::thread::Builder::new()
-                .name("hypercast-image".into())
+                .name("hypercast-map".into())
                 .spawn_scoped(s, move || run(part));
         }
         for part in &parts {
@@ -252,7 +264,7 @@ mod rounding_tests {
 
 #[cfg(test)]
 mod map_tests {
-    use super::map_parallel;
+    use super::{map_parallel, map_parallel_from};
 
     /// Every element mapped once, in place, as a plain loop maps it: for
     /// inputs below and above the size that goes to threads, and with
@@ -273,6 +285,15 @@ mod map_tests {
                     &[*x, x ^ 1, x.rotate_left(7)],
                     "n = {n}"
                 );
+            }
+        }
+        // A few elements, from 2 on (a plan's nodes), each out of a vector.
+        for n in [0usize, 1, 2, 3, 32] {
+            let input: Vec<usize> = (0..n).collect();
+            let mut out: Vec<Vec<usize>> = vec![Vec::new(); n];
+            map_parallel_from(&input, &mut out, 1, 2, |&i, o| o[0] = (0..i).collect());
+            for (i, o) in out.iter().enumerate() {
+                assert_eq!(o, &(0..i).collect::<Vec<_>>(), "n = {n}");
             }
         }
     }
