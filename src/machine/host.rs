@@ -491,19 +491,13 @@ impl Plan {
         // Each node's share of the super cells it owns, made over the
         // host's cores (each alone, so the same on any number of them).
         let own_shares = |owner: &[Vec<u16>; 2]| -> Vec<(CellStructure, Scene)> {
-            let nodes: Vec<u16> = (0..n as u16).collect();
-            let mut shares: Vec<Option<(CellStructure, Scene)>> = (0..n).map(|_| None).collect();
-            crate::trace::map_parallel_from(&nodes, &mut shares, 1, 2, |&i, out| {
-                out[0] = Some(cells.restrict_with(
+            crate::trace::collect_parallel(n, |i| {
+                cells.restrict_with(
                     scene,
-                    &|r, s| owner[r as usize][s as usize] == i,
+                    &|r, s| owner[r as usize][s as usize] as usize == i,
                     &hulls,
-                ));
-            });
-            shares
-                .into_iter()
-                .map(|s| s.expect("map_parallel_from maps every node"))
-                .collect()
+                )
+            })
         };
         let mut shares = if whole {
             vec![cells.restrict_with(scene, &|_, _| true, &hulls)]

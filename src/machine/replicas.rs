@@ -39,7 +39,7 @@ use crate::cells::traverse::CellTracer;
 use crate::cells::{CellStructure, Copies, Move, Region};
 use crate::machine::node;
 use crate::scene::Scene;
-use crate::trace::map_parallel_from;
+use crate::trace::collect_parallel;
 
 /// Whether nodes hold copies of other nodes' super cells.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum)]
@@ -138,35 +138,11 @@ fn leaves_in(cells: &CellStructure, r: Region, s: u32) -> u64 {
         .sum()
 }
 
-/// Node `node`'s share with copies of the longest prefix of `wanted`
-/// for which `slack` stays at or above zero (the least room its limits
-/// leave, in bytes: the module header's; negative past them), and that
-/// prefix's length; None where no prefix does (or the empty one: its own
-/// share, `own`). Every prefix's size is tallied (`prefix_sizes`), and
-/// only the one kept is made (`share_of_prefix`).
-pub fn share_with_copies(
-    m: &Machine,
-    owner: &[Vec<u16>; 2],
-    node: usize,
-    wanted: &[(usize, u32)],
-    own: &NodeShare,
-    slack: &dyn Fn(Size) -> f64,
-) -> (Option<NodeShare>, usize) {
-    let sizes = prefix_sizes(m, owner, node, wanted, own);
-    match longest_fit(&sizes, slack) {
-        0 => (None, 0),
-        k => (
-            Some(share_of_prefix(m, owner, node, &wanted[..k], sizes[k - 1])),
-            k,
-        ),
-    }
-}
-
 /// The size of node `node`'s share (its own is `own`) with copies of each
 /// prefix of `wanted`: entry `k - 1` for the first `k`. Tallied as the
 /// copies are added one by one (`ShareGrowth`), from its own share's size
 /// by difference; no share is made.
-pub fn prefix_sizes(
+fn prefix_sizes(
     m: &Machine,
     owner: &[Vec<u16>; 2],
     node: usize,
@@ -406,11 +382,7 @@ fn choose(
     let wanted = wanted(m.cells, owner, moves, n);
     let own: Vec<Size> = shares.iter().map(Size::of).collect();
     let all = Size::of(m.whole);
-    let nodes: Vec<usize> = (0..n).collect();
-    let mut sizes: Vec<Vec<Size>> = vec![Vec::new(); n];
-    map_parallel_from(&nodes, &mut sizes, 1, 2, |&i, out| {
-        out[0] = prefix_sizes(m, owner, i, &wanted[i], &shares[i]);
-    });
+    let sizes = collect_parallel(n, |i| prefix_sizes(m, owner, i, &wanted[i], &shares[i]));
     let held: u64 = own.iter().map(|s| s.structure).sum();
     let mut room = ((REPLICA_CAP * m.single as f64) as u64).saturating_sub(held);
     let mut copied = vec![0; n];
@@ -435,19 +407,16 @@ fn choose(
         // subtree, which the node may hold already, and drops its hull.)
         room = room.saturating_sub(size.structure.saturating_sub(own[i].structure));
     }
-    let mut made: Vec<Option<NodeShare>> = (0..n).map(|_| None).collect();
-    map_parallel_from(&nodes, &mut made, 1, 2, |&i, out| {
-        out[0] = match copied[i] {
-            0 => None,
-            k if k == wanted[i].len() => Some(m.whole.clone()),
-            k => Some(share_of_prefix(
-                m,
-                owner,
-                i,
-                &wanted[i][..k],
-                sizes[i][k - 1],
-            )),
-        };
+    let made = collect_parallel(n, |i| match copied[i] {
+        0 => None,
+        k if k == wanted[i].len() => Some(m.whole.clone()),
+        k => Some(share_of_prefix(
+            m,
+            owner,
+            i,
+            &wanted[i][..k],
+            sizes[i][k - 1],
+        )),
     });
     for (share, made) in shares.iter_mut().zip(made) {
         if let Some(made) = made {
@@ -586,8 +555,13 @@ mod tests {
             let limit = lo + (hi - lo) * tenth / 10;
             let slack = |s: Size| limit as f64 - s.node as f64;
             let longest = sizes.iter().rposition(|s| slack(*s) >= 0.0).unwrap();
-            let (share, k) = share_with_copies(&m, &owner, 0, &wanted[0], &own, &slack);
+            // As `choose` keeps them: the prefixes tallied, the longest
+            // that fits found among them, and only its share made.
+            let tallied = prefix_sizes(&m, &owner, 0, &wanted[0], &own);
+            let k = longest_fit(&tallied, &slack);
             assert_eq!(k, longest, "limit {tenth}/10");
+            let share =
+                (k > 0).then(|| share_of_prefix(&m, &owner, 0, &wanted[0][..k], tallied[k - 1]));
             let size = share.as_ref().map_or(Size::of(&own), Size::of);
             assert_eq!(
                 size, sizes[k],

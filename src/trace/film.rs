@@ -50,10 +50,22 @@ pub fn map_parallel<T: Sync, U: Send>(
     map_parallel_from(input, out, per, 1 << 16, f);
 }
 
+/// `f(i)` for every `i` in `0..n`, in order, over the host's cores (each
+/// alone, so the same on any number of them): for a few heavy elements,
+/// such as the nodes' shares that a machine's plan makes. Where the OS
+/// refuses a thread, the rest is done here.
+pub fn collect_parallel<U: Send>(n: usize, f: impl Fn(usize) -> U + Sync) -> Vec<U> {
+    let input: Vec<usize> = (0..n).collect();
+    let mut out: Vec<Option<U>> = (0..n).map(|_| None).collect();
+    map_parallel_from(&input, &mut out, 1, 2, |&i, o| o[0] = Some(f(i)));
+    out.into_iter()
+        .map(|u| u.expect("map_parallel_from maps every element"))
+        .collect()
+}
+
 /// `map_parallel` over the host's cores from `from` elements on (fewer
-/// are mapped here): 2 for a few heavy elements, such as the nodes'
-/// shares that a machine's plan makes.
-pub fn map_parallel_from<T: Sync, U: Send>(
+/// are mapped here).
+fn map_parallel_from<T: Sync, U: Send>(
     input: &[T],
     out: &mut [U],
     per: usize,
@@ -264,7 +276,7 @@ mod rounding_tests {
 
 #[cfg(test)]
 mod map_tests {
-    use super::{map_parallel, map_parallel_from};
+    use super::{collect_parallel, map_parallel};
 
     /// Every element mapped once, in place, as a plain loop maps it: for
     /// inputs below and above the size that goes to threads, and with
@@ -289,9 +301,8 @@ mod map_tests {
         }
         // A few elements, from 2 on (a plan's nodes), each out of a vector.
         for n in [0usize, 1, 2, 3, 32] {
-            let input: Vec<usize> = (0..n).collect();
-            let mut out: Vec<Vec<usize>> = vec![Vec::new(); n];
-            map_parallel_from(&input, &mut out, 1, 2, |&i, o| o[0] = (0..i).collect());
+            let out: Vec<Vec<usize>> = collect_parallel(n, |i| (0..i).collect());
+            assert_eq!(out.len(), n);
             for (i, o) in out.iter().enumerate() {
                 assert_eq!(o, &(0..i).collect::<Vec<_>>(), "n = {n}");
             }
