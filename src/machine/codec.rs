@@ -1,16 +1,20 @@
 //! The wire format. Every message between nodes and the host is encoded
-//! and decoded here and nowhere else, with bincode 2 over serde (variable
+//! and decoded here and nowhere else, in bincode 2's format (variable
 //! width integers, little endian), so that the bytes counted per link are real
 //! and the codec can be swapped in this one file (bincode is unmaintained;
 //! 3.0.0 is a deliberate compile_error release, hence the pin to 2).
 //! Messages travel in envelopes of stamped frames (`append_stamped`).
 //!
 //! Paths travel in a compact form (`wire_routed`; a node writes it with
-//! `RaysOut`, packing as it encodes, and reads it with `unpack_each`)
-//! that leaves out what the receiving node can recompute exactly from
-//! what it already holds: a shadow ray's direction (its light's position
-//! minus its origin) and `t_max`, every ray's pixel (the path's sample
-//! says it), a walk point's super cell (its cell says it).
+//! `RaysOut`, packing as it encodes, and reads it with `unpack_rays`), in
+//! bincode's format written and read by hand (`Out`, `In`): the same
+//! bytes as bincode's serde encoding of `ToNode::Rays`, which the tests
+//! check, at a fraction of serde's cost per field; every other message
+//! goes through serde. The form leaves out what the receiving node can
+//! recompute exactly from what it already holds: a shadow ray's direction
+//! (its light's position minus its origin) and `t_max`, every ray's pixel
+//! (the path's sample says it), a walk point's super cell (its cell says
+//! it).
 //!
 //! Finished samples travel to the host packed by hand (`pack_done_into`), as
 //! one byte string per batch: a record of a few flags and differences
@@ -89,14 +93,31 @@ pub fn append_stamped<T: Serialize>(
     body: &T,
     stamp: impl FnOnce(usize) -> f64,
 ) -> Result<FrameLen, String> {
+    append_frame(envelope, |out| encode_into(out, body), stamp)
+}
+
+/// Appends a message's bytes to `out` (`append_frame`'s writer for any
+/// message but paths).
+pub fn encode_into<T: Serialize>(out: &mut Vec<u8>, body: &T) -> Result<(), String> {
+    bincode::serde::encode_into_std_write(body, out, config())
+        .map(|_| ())
+        .map_err(|e| format!("cannot encode: {e}"))
+}
+
+/// `append_stamped` with the body written by `write` (`RaysOut::write`).
+pub fn append_frame(
+    envelope: &mut Vec<u8>,
+    write: impl FnOnce(&mut Vec<u8>) -> Result<(), String>,
+    stamp: impl FnOnce(usize) -> f64,
+) -> Result<FrameLen, String> {
     // The body goes after the header, whose length depends on the body's:
     // encode it at the end, then move it up behind the header.
     let start = envelope.len();
     const ROOM: usize = LEB128_MAX + STAMP;
     envelope.extend_from_slice(&[0u8; ROOM]);
-    if let Err(e) = bincode::serde::encode_into_std_write(body, envelope, config()) {
+    if let Err(e) = write(envelope) {
         envelope.truncate(start);
-        return Err(format!("cannot encode: {e}"));
+        return Err(e);
     }
     let body_len = envelope.len() - start - ROOM;
     let mut head = [0u8; LEB128_MAX];
@@ -187,8 +208,18 @@ pub fn decode_envelope<T: DeserializeOwned>(bytes: &[u8]) -> Result<Vec<(f64, T)
 /// without gathering them first (`decode_envelope`); stops at the first
 /// error, of the envelope or of `take`.
 pub fn for_each_frame<T: DeserializeOwned>(
-    mut bytes: &[u8],
+    bytes: &[u8],
     mut take: impl FnMut(f64, T) -> Result<(), String>,
+) -> Result<(), String> {
+    for_each_frame_body(bytes, |stamp, body| take(stamp, decode(body)?))
+}
+
+/// Hands each frame of an envelope, in order, to `take` as its stamp and
+/// its body's bytes, not decoded (`for_each_frame`; a node reads paths
+/// straight from them, `rays_in`).
+pub fn for_each_frame_body<'b>(
+    mut bytes: &'b [u8],
+    mut take: impl FnMut(f64, &'b [u8]) -> Result<(), String>,
 ) -> Result<(), String> {
     while !bytes.is_empty() {
         let Some((body_len, n)) = read_leb128(bytes) else {
@@ -206,7 +237,7 @@ pub fn for_each_frame<T: DeserializeOwned>(
                 rest.len()
             ));
         }
-        take(stamp, decode(&rest[..body_len])?)?;
+        take(stamp, &rest[..body_len])?;
         bytes = &rest[body_len..];
     }
     Ok(())
@@ -241,7 +272,7 @@ impl WireBatch {
 /// per path, made the jagged ball's d = 5 render 3-4% slower: the larger
 /// paths cost more to move than the allocations saved.)
 #[derive(Clone, Debug, Serialize, Deserialize)]
-struct WireRouted<S = Vec<WireJob>> {
+struct WireRouted<S = Vec<WireJob>, A = WireJob> {
     dest: u16,
     hops: u8,
     sample: u64,
@@ -253,7 +284,7 @@ struct WireRouted<S = Vec<WireJob>> {
     /// None for +0.0, the usual start.
     t_min: Option<f64>,
     at: Option<WireAt>,
-    active: WireJob,
+    active: A,
     stack: S,
 }
 
@@ -440,10 +471,11 @@ pub fn pack(paths: &[Routed], ctx: &PathContext) -> WireBatch {
 }
 
 /// `ToNode::Rays(pack(paths, ctx))` as bincode writes it, packed while it
-/// is written: the same bytes (`tests::paths_unpack_exactly_as_packed_and_smaller`),
-/// without the batch and a vector per path's stack built first and
-/// dropped. At d = 5 the allocator and copying took a tenth of the
-/// machine's CPU, much of it in such intermediate vectors.
+/// is written (`RaysOut::write`): the same bytes
+/// (`tests::paths_unpack_exactly_as_packed_and_smaller`), without the
+/// batch and a vector per path's stack built first and dropped. At d = 5
+/// the allocator and copying took a tenth of the machine's CPU, much of it
+/// in such intermediate vectors.
 pub struct RaysOut<'a, 'c> {
     pub paths: &'a [Routed],
     pub ctx: &'a PathContext<'c>,
@@ -451,39 +483,413 @@ pub struct RaysOut<'a, 'c> {
 
 /// `ToNode::Rays`'s place among `ToNode`'s variants, as serde numbers them
 /// (reordering the variants fails the test that `RaysOut` cites).
-const RAYS_VARIANT: u32 = 1;
+const RAYS_VARIANT: u8 = 1;
 
-impl Serialize for RaysOut<'_, '_> {
-    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        s.serialize_newtype_variant("ToNode", RAYS_VARIANT, "Rays", &BatchOut(self))
+impl RaysOut<'_, '_> {
+    /// Appends the message's bytes to `out` (`append_frame`).
+    ///
+    /// Written by hand in bincode's own format (`Out`), not through serde:
+    /// paths are nearly all the bytes the nodes send and receive, and
+    /// serde's calls per field took 15% of a d = 5 render's CPU and 26% of
+    /// the house's at the default topology (perf, 2026-12-06).
+    pub fn write(&self, out: &mut Vec<u8>) -> Result<(), String> {
+        let mut o = Out(out);
+        o.byte(RAYS_VARIANT);
+        o.uint(self.paths.len() as u64);
+        for r in self.paths {
+            // Room for the path's most bytes, so that the writes below
+            // do not grow the buffer one by one.
+            o.0.reserve(MAX_PATH_HEAD + MAX_JOB_BYTES * (1 + r.path.stack.len()));
+            let w = wire_routed(r, self.ctx, |st| st);
+            o.uint(w.dest.into());
+            o.byte(w.hops);
+            o.uint(w.sample);
+            o.uint(w.origin.into());
+            for c in w.sum {
+                o.int(c);
+            }
+            o.uint(w.flags.into());
+            o.uint(w.number.into());
+            o.option(w.t_min, Out::f64);
+            o.option(w.at, |o, a| {
+                o.uint(a.cell.into());
+                match a.entry {
+                    WireEntry::At(t) => {
+                        o.byte(3);
+                        o.f64(t);
+                    }
+                    face => o.byte(face_code(face)),
+                }
+            });
+            o.job(&w.active)?;
+            o.uint(w.stack.jobs.len() as u64);
+            for j in w.stack.jobs() {
+                o.job(&j)?;
+            }
+        }
+        Ok(())
     }
 }
 
-/// `WireBatch`'s newtype, streamed (`RaysOut`).
-struct BatchOut<'r, 'a, 'c>(&'r RaysOut<'a, 'c>);
+/// A face's variant index in `WireEntry` (`At` is 3).
+fn face_code(e: WireEntry) -> u8 {
+    match e {
+        WireEntry::AcrossX => 0,
+        WireEntry::AcrossY => 1,
+        WireEntry::AcrossDepth => 2,
+        WireEntry::At(_) => 3,
+    }
+}
 
-impl Serialize for BatchOut<'_, '_, '_> {
-    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        let RaysOut { paths, ctx } = self.0;
-        s.serialize_newtype_struct(
-            "WireBatch",
-            &SeqOut(paths.iter().map(|r| wire_routed(r, ctx, |st| st))),
+/// bincode 2's standard encoding (little endian, variable-width integers),
+/// written by hand for the paths (`RaysOut::write`; read back by `In`):
+/// an integer of up to 250 is one byte, a larger one a marker byte (251,
+/// 252, 253) and 2, 4 or 8 bytes; a signed one is zigzagged first; a `u8`
+/// is its byte; an option a byte 0 or 1 before its value; an enum its
+/// variant index as an integer; a sequence its length as one; floats their
+/// bytes.
+struct Out<'v>(&'v mut Vec<u8>);
+
+/// The most bytes of a path's fields before its rays (`RaysOut::write`):
+/// nine integers of up to 9 bytes, `hops`, and two options of a float.
+const MAX_PATH_HEAD: usize = 9 * 9 + 1 + 2 * 9 + 9;
+/// The most bytes of a ray but one sent whole (`WireJob::Ray`).
+const MAX_JOB_BYTES: usize = 1 + 1 + 24 + 24 + 1 + 12 + 9 + 6;
+
+/// bincode's markers of a 2-, 4- and 8-byte integer (`Out::uint`).
+const U16_MARK: u8 = 251;
+const U32_MARK: u8 = 252;
+const U64_MARK: u8 = 253;
+
+impl Out<'_> {
+    #[inline(always)]
+    fn byte(&mut self, b: u8) {
+        self.0.push(b);
+    }
+
+    #[inline(always)]
+    fn uint(&mut self, v: u64) {
+        if v < u64::from(U16_MARK) {
+            self.0.push(v as u8);
+        } else if let Ok(v) = u16::try_from(v) {
+            self.0.push(U16_MARK);
+            self.0.extend_from_slice(&v.to_le_bytes());
+        } else if let Ok(v) = u32::try_from(v) {
+            self.0.push(U32_MARK);
+            self.0.extend_from_slice(&v.to_le_bytes());
+        } else {
+            self.0.push(U64_MARK);
+            self.0.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+
+    #[inline(always)]
+    fn int(&mut self, v: i64) {
+        self.uint(zigzag(v));
+    }
+
+    #[inline(always)]
+    fn f64(&mut self, v: f64) {
+        self.0.extend_from_slice(&v.to_le_bytes());
+    }
+
+    #[inline]
+    fn f32s(&mut self, v: [f32; 3]) {
+        for x in v {
+            self.0.extend_from_slice(&x.to_le_bytes());
+        }
+    }
+
+    #[inline]
+    fn f64s(&mut self, v: [f64; 3]) {
+        for x in v {
+            self.f64(x);
+        }
+    }
+
+    #[inline]
+    fn option<T>(&mut self, v: Option<T>, put: impl FnOnce(&mut Self, T)) {
+        match v {
+            None => self.byte(0),
+            Some(x) => {
+                self.byte(1);
+                put(self, x);
+            }
+        }
+    }
+
+    fn job(&mut self, j: &WireJob) -> Result<(), String> {
+        let leaving = |o: &mut Self, l: Option<PrimId>| o.option(l, |o, p| o.uint(p.0.into()));
+        match *j {
+            WireJob::Shadow {
+                light,
+                origin,
+                depth,
+                weight,
+                leaving: l,
+            } => {
+                self.byte(0);
+                self.uint(light.into());
+                self.f64s(origin);
+                self.byte(depth);
+                self.f32s(weight);
+                leaving(self, l);
+            }
+            WireJob::Ray {
+                kind,
+                origin,
+                dir,
+                depth,
+                weight,
+                t_max,
+                leaving: l,
+            } => {
+                self.byte(1);
+                self.byte(kind);
+                self.f64s(origin);
+                self.f64s(dir);
+                self.byte(depth);
+                self.f32s(weight);
+                self.option(t_max, Self::f64);
+                leaving(self, l);
+            }
+            // Never made by the shader: through serde, as written whole.
+            WireJob::Whole(ref job) => {
+                self.byte(2);
+                bincode::serde::encode_into_std_write(job, self.0, config())
+                    .map_err(|e| format!("cannot encode: {e}"))?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Reads what `Out` writes, as bincode reads it: an integer's marker must
+/// fit its type, an option's and a bool's byte be 0 or 1, a variant index
+/// name a variant.
+struct In<'b> {
+    bytes: &'b [u8],
+    at: usize,
+}
+
+/// The fewest bytes a ray takes on the wire (`WireJob::Shadow`: its
+/// variant, light, origin, depth, weight and an absent `leaving`): a
+/// stack's length claims no more rays than its message has room for.
+const MIN_JOB_BYTES: usize = 1 + 1 + 24 + 1 + 12 + 1;
+
+impl<'b> In<'b> {
+    #[cold]
+    fn cut(&self) -> String {
+        format!("a batch of paths cut short at byte {}", self.at)
+    }
+
+    #[inline(always)]
+    fn array<const N: usize>(&mut self) -> Result<[u8; N], String> {
+        let a = self
+            .bytes
+            .get(self.at..)
+            .and_then(|b| b.first_chunk::<N>())
+            .copied()
+            .ok_or_else(|| self.cut())?;
+        self.at += N;
+        Ok(a)
+    }
+
+    #[inline(always)]
+    fn byte(&mut self) -> Result<u8, String> {
+        Ok(self.array::<1>()?[0])
+    }
+
+    /// An integer of at most `width` bytes.
+    #[inline(always)]
+    fn uint(&mut self, width: usize) -> Result<u64, String> {
+        let b = self.byte()?;
+        let (v, w) = match b {
+            U16_MARK => (u64::from(u16::from_le_bytes(self.array()?)), 2),
+            U32_MARK => (u64::from(u32::from_le_bytes(self.array()?)), 4),
+            U64_MARK => (u64::from_le_bytes(self.array()?), 8),
+            b if b < U16_MARK => (u64::from(b), 1),
+            b => return Err(format!("an integer marked {b} at byte {}", self.at - 1)),
+        };
+        if w > width {
+            return Err(format!(
+                "an integer of {w} bytes where {width} fit, at byte {}",
+                self.at
+            ));
+        }
+        Ok(v)
+    }
+
+    #[inline]
+    fn u16(&mut self) -> Result<u16, String> {
+        Ok(self.uint(2)? as u16)
+    }
+
+    #[inline]
+    fn u32(&mut self) -> Result<u32, String> {
+        Ok(self.uint(4)? as u32)
+    }
+
+    #[inline(always)]
+    fn int(&mut self) -> Result<i64, String> {
+        Ok(unzigzag(self.uint(8)?))
+    }
+
+    #[inline(always)]
+    fn f64(&mut self) -> Result<f64, String> {
+        Ok(f64::from_le_bytes(self.array()?))
+    }
+
+    #[inline]
+    fn f32s(&mut self) -> Result<[f32; 3], String> {
+        let mut v = [0.0; 3];
+        for x in &mut v {
+            *x = f32::from_le_bytes(self.array()?);
+        }
+        Ok(v)
+    }
+
+    #[inline]
+    fn f64s(&mut self) -> Result<[f64; 3], String> {
+        Ok([self.f64()?, self.f64()?, self.f64()?])
+    }
+
+    /// A variant index below `count`.
+    #[inline]
+    fn variant(&mut self, count: u32, of: &str) -> Result<u32, String> {
+        let v = self.u32()?;
+        if v < count {
+            Ok(v)
+        } else {
+            Err(format!("{of} of variant {v}, which is none"))
+        }
+    }
+
+    #[inline]
+    fn option<T>(
+        &mut self,
+        get: impl FnOnce(&mut Self) -> Result<T, String>,
+    ) -> Result<Option<T>, String> {
+        match self.byte()? {
+            0 => Ok(None),
+            1 => get(self).map(Some),
+            b => Err(format!("an option tagged {b} at byte {}", self.at - 1)),
+        }
+    }
+
+    fn job(&mut self) -> Result<WireJob, String> {
+        let leaving = |i: &mut Self| i.option(|i| i.u32().map(PrimId));
+        Ok(match self.variant(3, "a ray")? {
+            0 => WireJob::Shadow {
+                light: self.u32()?,
+                origin: self.f64s()?,
+                depth: self.byte()?,
+                weight: self.f32s()?,
+                leaving: leaving(self)?,
+            },
+            1 => WireJob::Ray {
+                kind: self.byte()?,
+                origin: self.f64s()?,
+                dir: self.f64s()?,
+                depth: self.byte()?,
+                weight: self.f32s()?,
+                t_max: self.option(Self::f64)?,
+                leaving: leaving(self)?,
+            },
+            _ => {
+                let (job, used) =
+                    bincode::serde::decode_from_slice(&self.bytes[self.at..], config())
+                        .map_err(|e| format!("cannot decode a ray: {e}"))?;
+                self.at += used;
+                WireJob::Whole(job)
+            }
+        })
+    }
+
+    /// A path (`RaysOut::write`), unpacked, `spp` samples to a pixel.
+    fn routed(&mut self, spp: u64, ctx: &PathContext) -> Result<Routed, String> {
+        let dest = self.u16()?;
+        let hops = self.byte()?;
+        let sample = self.uint(8)?;
+        let origin = self.u16()?;
+        let sum = [self.int()?, self.int()?, self.int()?];
+        let flags = self.u32()?;
+        let number = self.u32()?;
+        let t_min = self.option(Self::f64)?;
+        let at = self.option(|i| {
+            let cell = i.u32()?;
+            let entry = match i.variant(4, "a walk point's entry")? {
+                0 => WireEntry::AcrossX,
+                1 => WireEntry::AcrossY,
+                2 => WireEntry::AcrossDepth,
+                _ => WireEntry::At(i.f64()?),
+            };
+            Ok(WireAt { cell, entry })
+        })?;
+        let pixel = pixel_of(sample, spp)?;
+        let active = unpack_job(self.job()?, pixel, ctx)?;
+        let n = self.uint(8)?;
+        let room = (self.bytes.len() - self.at) / MIN_JOB_BYTES;
+        let mut stack = Vec::with_capacity(usize::try_from(n).unwrap_or(usize::MAX).min(room));
+        for _ in 0..n {
+            stack.push(unpack_job(self.job()?, pixel, ctx)?);
+        }
+        routed_from(
+            WireRouted {
+                dest,
+                hops,
+                sample,
+                origin,
+                sum,
+                flags,
+                number,
+                t_min,
+                at,
+                active,
+                stack,
+            },
+            ctx,
         )
     }
 }
 
-/// A sequence written from an iterator of known length (bincode writes
-/// the length first).
-struct SeqOut<I>(I);
-
-impl<I, T> Serialize for SeqOut<I>
-where
-    I: Iterator<Item = T> + ExactSizeIterator + Clone,
-    T: Serialize,
-{
-    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        s.collect_seq(self.0.clone())
+/// The batch of paths in a frame's body, if it is `ToNode::Rays`
+/// (`unpack_rays` reads it); None for any other message.
+pub fn rays_in(body: &[u8]) -> Option<&[u8]> {
+    match body.split_first() {
+        Some((&RAYS_VARIANT, batch)) => Some(batch),
+        _ => None,
     }
+}
+
+/// The paths of a batch (`rays_in`), exactly as they were packed, each
+/// handed to `take` as it is read from the bytes, with no decoded batch
+/// or per-path vector of wire rays between; an error for bytes that are
+/// not such a batch, or name a light, kind or cell the node does not have.
+/// Stops at the first error, of the batch or of `take`, the paths before
+/// it taken.
+pub fn unpack_rays(
+    batch: &[u8],
+    ctx: &PathContext,
+    mut take: impl FnMut(Routed) -> Result<(), String>,
+) -> Result<(), String> {
+    let spp = u64::from(ctx.spp.max(1));
+    let mut input = In {
+        bytes: batch,
+        at: 0,
+    };
+    let n = input.uint(8)?;
+    for _ in 0..n {
+        take(input.routed(spp, ctx)?)?;
+    }
+    if input.at != batch.len() {
+        return Err(format!(
+            "a batch of paths of {} bytes has {} trailing bytes",
+            batch.len() + 1,
+            batch.len() - input.at
+        ));
+    }
+    Ok(())
 }
 
 /// A path's stack, packed as it is written (`wire_routed`).
@@ -495,14 +901,8 @@ struct StackOut<'a, 'c> {
 }
 
 impl StackOut<'_, '_> {
-    fn jobs(&self) -> impl ExactSizeIterator<Item = WireJob> + Clone + '_ {
+    fn jobs(&self) -> impl ExactSizeIterator<Item = WireJob> + '_ {
         self.jobs.iter().map(|j| pack_job(j, self.pixel, self.ctx))
-    }
-}
-
-impl Serialize for StackOut<'_, '_> {
-    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        SeqOut(self.jobs()).serialize(s)
     }
 }
 
@@ -573,9 +973,53 @@ pub fn unpack_each(
 
 /// One path of a batch (`unpack_each`), `spp` samples to a pixel.
 fn unpack_routed(w: WireRouted, spp: u64, ctx: &PathContext) -> Result<Routed, String> {
-    let pixel = u32::try_from(w.sample / spp)
-        .map_err(|_| format!("sample {} is past every pixel", w.sample))?;
-    let job = unpack_job(w.active, pixel, ctx)?;
+    let WireRouted {
+        dest,
+        hops,
+        sample,
+        origin,
+        sum,
+        flags,
+        number,
+        t_min,
+        at,
+        active,
+        stack,
+    } = w;
+    let pixel = pixel_of(sample, spp)?;
+    let active = unpack_job(active, pixel, ctx)?;
+    // Its capacity its length: a node's memory counts it (`Path::bytes`).
+    let mut jobs = Vec::with_capacity(stack.len());
+    for j in stack {
+        jobs.push(unpack_job(j, pixel, ctx)?);
+    }
+    let stack = jobs;
+    routed_from(
+        WireRouted {
+            dest,
+            hops,
+            sample,
+            origin,
+            sum,
+            flags,
+            number,
+            t_min,
+            at,
+            active,
+            stack,
+        },
+        ctx,
+    )
+}
+
+/// The pixel of sample `sample`, `spp` samples to a pixel.
+fn pixel_of(sample: u64, spp: u64) -> Result<u32, String> {
+    u32::try_from(sample / spp).map_err(|_| format!("sample {sample} is past every pixel"))
+}
+
+/// A path from its wire form, its rays unpacked (`unpack_job`).
+fn routed_from(w: WireRouted<Vec<RayJob>, RayJob>, ctx: &PathContext) -> Result<Routed, String> {
+    let job = w.active;
     let at = match w.at {
         None => None,
         Some(a) => {
@@ -601,10 +1045,7 @@ fn unpack_routed(w: WireRouted, spp: u64, ctx: &PathContext) -> Result<Routed, S
             Some(p)
         }
     };
-    let mut stack = Vec::with_capacity(w.stack.len());
-    for j in w.stack {
-        stack.push(unpack_job(j, pixel, ctx)?);
-    }
+    let stack = w.stack;
     Ok(Routed {
         dest: w.dest,
         hops: w.hops,
@@ -1026,12 +1467,9 @@ mod tests {
         );
         let batch = pack(&paths, &ctx);
         let bytes = encode(&batch).unwrap();
-        // A node writes the same bytes without the batch (`RaysOut`).
-        let streamed = encode(&RaysOut {
-            paths: &paths,
-            ctx: &ctx,
-        })
-        .unwrap();
+        // A node writes the same bytes as bincode's serde without the batch
+        // (`RaysOut`), and reads them back by hand as serde does.
+        let streamed = rays_bytes(&paths, &ctx);
         assert_eq!(streamed, encode(&ToNode::Rays(batch.clone())).unwrap());
         let ToNode::Rays(again) = decode::<ToNode>(&streamed).unwrap() else {
             panic!("streamed paths decode as another message");
@@ -1039,6 +1477,11 @@ mod tests {
         assert_eq!(format!("{again:?}"), format!("{batch:?}"));
         let back_again = unpack(decode(&bytes).unwrap(), &ctx).unwrap();
         assert_eq!(format!("{paths:?}"), format!("{back_again:?}"));
+        let read = read_rays(&streamed, &ctx).unwrap();
+        assert_eq!(format!("{read:?}"), format!("{back_again:?}"));
+        for (a, b) in read.iter().zip(&back_again) {
+            assert_eq!(a.path.stack.capacity(), b.path.stack.capacity());
+        }
         for (a, b) in paths.iter().zip(&back_again) {
             let (a, b) = (&a.path, &b.path);
             assert_eq!(a.active.t_min.to_bits(), b.active.t_min.to_bits());
@@ -1060,6 +1503,131 @@ mod tests {
         let mut far = paths[0].clone();
         far.path.active.at.as_mut().unwrap().cell = last + 1;
         assert!(unpack(pack(&[far], &ctx), &ctx).is_err());
+    }
+
+    /// `RaysOut::write`'s bytes.
+    fn rays_bytes(paths: &[Routed], ctx: &PathContext) -> Vec<u8> {
+        let mut out = Vec::new();
+        RaysOut { paths, ctx }.write(&mut out).unwrap();
+        out
+    }
+
+    /// `unpack_rays` of a message's bytes, gathered.
+    fn read_rays(bytes: &[u8], ctx: &PathContext) -> Result<Vec<Routed>, String> {
+        let batch = rays_in(bytes).ok_or("not a batch of paths")?;
+        let mut paths = Vec::new();
+        unpack_rays(batch, ctx, |r| {
+            paths.push(r);
+            Ok(())
+        })?;
+        Ok(paths)
+    }
+
+    /// Paths read by hand (`unpack_rays`) as bincode's serde reads them,
+    /// whatever their numbers' widths; and bytes cut short, lengthened or
+    /// changed are an error or other paths, never a panic.
+    #[test]
+    fn paths_are_read_by_hand_as_serde_reads_them() {
+        let (scene, cells) = ball_scene();
+        let ctx = PathContext {
+            lights: &scene.lights,
+            spp: 2,
+            cells: &cells,
+        };
+        let o = Vec3::new(0.5, -2.0, 0.25);
+        let job = |kind, dir, pixel, t_max, leaving| RayJob {
+            ray: Ray::new(o, dir),
+            kind,
+            pixel,
+            depth: 3,
+            weight: [0.25, 1.0, 0.5],
+            t_max,
+            leaving,
+        };
+        let mut paths = Vec::new();
+        // Numbers on every side of each width's marker.
+        let widths = [
+            0u64,
+            250,
+            251,
+            65_535,
+            65_536,
+            u64::from(u32::MAX),
+            u64::MAX,
+        ];
+        for (i, &v) in widths.iter().enumerate() {
+            let pixel = u32::try_from(v / 2).unwrap_or(u32::MAX - 1);
+            let sample = 2 * u64::from(pixel) + (v & 1);
+            let small = u16::try_from(v).unwrap_or(u16::MAX);
+            let shadow = job(
+                RayKind::Shadow,
+                scene.lights[i % 2].position - o,
+                pixel,
+                1.0,
+                u32::try_from(v).ok().map(PrimId),
+            );
+            paths.push(Routed {
+                dest: small,
+                hops: i as u8,
+                path: Path {
+                    sample,
+                    origin: small,
+                    sum: [v as i64, -(v as i64), i64::MIN + i as i64],
+                    active: Active {
+                        job: if i % 2 == 0 {
+                            shadow
+                        } else {
+                            job(RayKind::Reflected, Vec3::Y, pixel, 2.0, None)
+                        },
+                        number: u32::try_from(v).unwrap_or(u32::MAX),
+                        t_min: if i % 3 == 0 { 0.0 } else { 0.5 },
+                        at: None,
+                    },
+                    stack: (0..i)
+                        .map(|k| match k % 3 {
+                            0 => shadow,
+                            1 => job(RayKind::Refracted, -Vec3::Z, pixel, f64::INFINITY, None),
+                            _ => job(RayKind::Primary, Vec3::X, pixel ^ 1, 3.0, None),
+                        })
+                        .collect(),
+                    forks: small,
+                    leaf: i % 2 == 1,
+                },
+            });
+        }
+        let bytes = rays_bytes(&paths, &ctx);
+        let batch = pack(&paths, &ctx);
+        assert_eq!(bytes, encode(&ToNode::Rays(batch.clone())).unwrap());
+        let by_serde = unpack(batch, &ctx).unwrap();
+        assert_eq!(
+            format!("{:?}", read_rays(&bytes, &ctx).unwrap()),
+            format!("{by_serde:?}")
+        );
+        assert_eq!(format!("{paths:?}"), format!("{by_serde:?}"));
+        // Every cut is an error; so is a byte more.
+        for n in 1..bytes.len() {
+            assert!(read_rays(&bytes[..n], &ctx).is_err(), "cut at {n}");
+        }
+        let mut longer = bytes.clone();
+        longer.push(0);
+        assert!(read_rays(&longer, &ctx).is_err());
+        // Any byte changed: whatever serde makes of it, the hand reader
+        // makes the same, or both fail.
+        for n in 1..bytes.len() {
+            for x in [1u8, 0x80, 0xff] {
+                let mut b = bytes.clone();
+                b[n] ^= x;
+                let hand = read_rays(&b, &ctx).map(|p| format!("{p:?}"));
+                let serde = decode::<ToNode>(&b).and_then(|m| match m {
+                    ToNode::Rays(w) => unpack(w, &ctx).map(|p| format!("{p:?}")),
+                    _ => Err("another message".into()),
+                });
+                assert_eq!(hand.is_ok(), serde.is_ok(), "byte {n} ^ {x:#x}");
+                if let (Ok(h), Ok(s)) = (hand, serde) {
+                    assert_eq!(h, s, "byte {n} ^ {x:#x}");
+                }
+            }
+        }
     }
 
     /// The host's memory plan counts a path at most twice its decoded
@@ -1117,7 +1685,7 @@ mod tests {
                 paths: std::slice::from_ref(&r),
                 ctx: &ctx,
             };
-            let (_, len) = encode_stamped(&out, |_| 0.0).unwrap();
+            let len = append_frame(&mut Vec::new(), |b| out.write(b), |_| 0.0).unwrap();
             let decoded = std::mem::size_of::<Path>() + n * std::mem::size_of::<RayJob>();
             assert!(
                 len.held <= decoded,

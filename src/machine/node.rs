@@ -25,8 +25,8 @@ use std::cmp::Ordering;
 use std::collections::{BinaryHeap, VecDeque};
 
 use super::codec::{
-    PathContext, RaysOut, WireDone, append_stamped, decode_envelope, for_each_frame,
-    pack_done_into, restamp, unpack_each,
+    PathContext, RaysOut, WireDone, append_frame, append_stamped, decode, decode_envelope,
+    encode_into, for_each_frame_body, pack_done_into, rays_in, restamp, unpack_each, unpack_rays,
 };
 use super::host::stack_bound;
 use super::message::{
@@ -839,9 +839,22 @@ impl<'a> Node<'a> {
         self.hold(bytes.len());
         // Each frame is taken as it is decoded; the bytes are let go after
         // the last (held until then, with what they decoded to).
-        for_each_frame(&bytes, |sent_at, body: ToNode| {
-            self.hold(ray_bytes(&body));
-            self.take(sent_at, body)
+        for_each_frame_body(&bytes, |sent_at, body| match rays_in(body) {
+            // Paths, the bulk of what arrives, are read straight from the
+            // bytes (`codec::unpack_rays`), each held as it is made.
+            Some(batch) => {
+                let arrival = sent_at + self.model.latency;
+                let ctx = self.path_context();
+                unpack_rays(batch, &ctx, |r| {
+                    self.hold(r.path.bytes());
+                    self.arrive(r, arrival)
+                })
+            }
+            None => {
+                let body: ToNode = decode(body)?;
+                self.hold(ray_bytes(&body));
+                self.take(sent_at, body)
+            }
         })?;
         self.release(bytes.len());
         self.keep_spare(bytes);
@@ -1295,13 +1308,11 @@ impl<'a> Node<'a> {
         // Packed as it is encoded (`RaysOut`): the link model's work, not
         // the node's compute (`enqueue` takes it off).
         let ctx = self.path_context();
-        self.enqueue(
-            i,
-            &RaysOut {
-                paths: &paths,
-                ctx: &ctx,
-            },
-        )?;
+        let out = RaysOut {
+            paths: &paths,
+            ctx: &ctx,
+        };
+        self.enqueue_with(i, |buf| out.write(buf))?;
         self.release(held);
         Ok(())
     }
@@ -1348,10 +1359,19 @@ impl<'a> Node<'a> {
     /// Stamps, encodes and queues a message on link `i`; the clock pays
     /// its sending cost.
     fn enqueue<T: serde::Serialize>(&mut self, i: usize, body: &T) -> Result<(), NodeError> {
+        self.enqueue_with(i, |buf| encode_into(buf, body))
+    }
+
+    /// `enqueue` of a message that `write` encodes (`RaysOut::write`).
+    fn enqueue_with(
+        &mut self,
+        i: usize,
+        write: impl FnOnce(&mut Vec<u8>) -> Result<(), String>,
+    ) -> Result<(), NodeError> {
         self.catch_up();
         let len = self.excluding(|n| {
             let (model, clock) = (n.model, &mut n.clock);
-            append_stamped(&mut n.waiting[i], body, |len| {
+            append_frame(&mut n.waiting[i], write, |len| {
                 *clock += model.send_cost(len);
                 *clock
             })
