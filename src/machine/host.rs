@@ -228,6 +228,17 @@ fn enough_memory(b: u64) -> String {
 /// sphereflake) are built once.
 const HOT_ROUNDS: usize = 2;
 
+/// The predicted imbalance (`mapping::predicted_imbalance`) within which
+/// no round of `HOT_ROUNDS` is tried: a round could gain at most this
+/// less 1, which is the prediction's own error (the sphereflake at
+/// 1024x1024 on 32 nodes predicts 1.06 and runs at a busy imbalance of
+/// 1.15). Of the rounds the bundled scenes and the sphereflake tried at
+/// d = 1 to 7 from within 1.1, six made the loads less even and one
+/// evened them by 0.005 (`glass.ron` at d = 2, from 1.008); the
+/// sphereflake's at d = 5 (1.061 to 1.077, rejected) took 0.12-0.15 s of
+/// its plan's 0.3 s.
+const HOT_EVEN: f64 = 1.1;
+
 /// The most crossings between nodes a split structure may have, against
 /// the structure as built, by the pre-pass walked under each mapping
 /// (`mapping::map`). A split halves regions whatever their
@@ -451,6 +462,7 @@ impl Plan {
         while opts.mapping == Mapping::Balanced
             && sub == Subdivision::Balanced
             && round < HOT_ROUNDS
+            && mapping::predicted_imbalance(&work, &owner, d) > HOT_EVEN
         {
             let more = mapping::hot(&cells, &work, d, (&cam, w, h), whole);
             if more.iter().all(Vec::is_empty) {
