@@ -25,8 +25,8 @@ use std::cmp::Ordering;
 use std::collections::{BinaryHeap, VecDeque};
 
 use super::codec::{
-    PathContext, RaysOut, WireDone, append_frame, append_stamped, decode, decode_envelope,
-    encode_into, for_each_frame_body, pack_done_into, rays_in, restamp, unpack_each, unpack_rays,
+    PathContext, RaysOut, WireDone, append_frame, append_stamped, decode, encode_into,
+    for_each_frame_body, pack_done_into, rays_in, restamp, unpack_rays,
 };
 use super::host::stack_bound;
 use super::message::{
@@ -197,39 +197,50 @@ pub type NodeError = String;
 /// reported to the host by the caller.
 pub fn run(id: u16, links: &mut dyn NodeLinks, faults: Faults) -> Result<(), NodeError> {
     // The load message first. Neighbours loaded earlier may already send
-    // rays: those wait until the node knows its share (and its memory),
-    // then are held and taken first.
-    let mut early: Vec<(f64, ToNode)> = Vec::new();
-    let (share, arrival) = 'load: loop {
+    // rays: those frames wait, as bytes, until the node knows its share
+    // (and its memory), then are held and taken first.
+    let mut early: Vec<(f64, Vec<u8>)> = Vec::new();
+    let mut load = None;
+    let mut stopped = false;
+    while load.is_none() {
         match links
             .try_recv()
             .map_err(|c| format!("link {:?} closed before loading", c.0))?
         {
-            Some(bytes) => {
-                let mut frames = decode_envelope::<ToNode>(&bytes)?.into_iter();
-                while let Some((sent_at, body)) = frames.next() {
-                    match body {
-                        ToNode::Load(share) => {
-                            let t = sent_at + share.link.latency;
-                            early.extend(frames);
-                            break 'load (share, t);
-                        }
-                        ToNode::Stop => return Ok(()),
-                        ToNode::Rays(_) | ToNode::Clock { .. } => early.push((sent_at, body)),
-                        _ => return Err("a message before the load message".into()),
-                    }
+            Some(bytes) => for_each_frame_body(&bytes, |sent_at, body| {
+                if stopped {
+                    return Ok(());
                 }
-            }
+                if load.is_some() || rays_in(body).is_some() {
+                    early.push((sent_at, body.to_vec()));
+                    return Ok(());
+                }
+                match decode::<ToNode>(body)? {
+                    ToNode::Load(share) => {
+                        let t = sent_at + share.link.latency;
+                        load = Some((share, t));
+                    }
+                    ToNode::Stop => stopped = true,
+                    ToNode::Clock { .. } => early.push((sent_at, body.to_vec())),
+                    _ => return Err("a message before the load message".into()),
+                }
+                Ok(())
+            })?,
             None => links.wait(&[]),
         }
-    };
+        if stopped {
+            return Ok(());
+        }
+    }
+    let (share, arrival) = load.ok_or("no load message")?;
     let share = *share;
     let mut node = Node::new(id, &share, links, arrival, faults)?;
     for (_, body) in &early {
-        node.hold(ray_bytes(body));
+        node.hold(body.len());
     }
     for (sent_at, body) in early {
-        node.take(sent_at, body)?;
+        node.take_frame(sent_at, &body)?;
+        node.release(body.len());
     }
     node.run()
 }
@@ -276,14 +287,6 @@ fn shadows_on_top(spawned: &mut [RayJob]) {
         spawned.rotate_left(shadows);
     } else {
         spawned.sort_by_key(|j| j.kind == RayKind::Shadow);
-    }
-}
-
-/// The bytes of the paths a message brings, once decoded.
-fn ray_bytes(body: &ToNode) -> usize {
-    match body {
-        ToNode::Rays(batch) => batch.path_bytes(),
-        _ => 0,
     }
 }
 
@@ -839,23 +842,7 @@ impl<'a> Node<'a> {
         self.hold(bytes.len());
         // Each frame is taken as it is decoded; the bytes are let go after
         // the last (held until then, with what they decoded to).
-        for_each_frame_body(&bytes, |sent_at, body| match rays_in(body) {
-            // Paths, the bulk of what arrives, are read straight from the
-            // bytes (`codec::unpack_rays`), each held as it is made.
-            Some(batch) => {
-                let arrival = sent_at + self.model.latency;
-                let ctx = self.path_context();
-                unpack_rays(batch, &ctx, |r| {
-                    self.hold(r.path.bytes());
-                    self.arrive(r, arrival)
-                })
-            }
-            None => {
-                let body: ToNode = decode(body)?;
-                self.hold(ray_bytes(&body));
-                self.take(sent_at, body)
-            }
-        })?;
+        for_each_frame_body(&bytes, |sent_at, body| self.take_frame(sent_at, body))?;
         self.release(bytes.len());
         self.keep_spare(bytes);
         Ok(())
@@ -870,23 +857,29 @@ impl<'a> Node<'a> {
         }
     }
 
-    /// Takes one message (its paths' bytes held). It is here once sent and
-    /// across the wire; what it brings waits, with that arrival time, until
-    /// the node's clock gets there (`work_a_little`); only forwarding is at
-    /// once.
+    /// Takes one message from its frame's body (its bytes held). It is
+    /// here once sent and across the wire; what it brings waits, with that
+    /// arrival time, until the node's clock gets there (`work_a_little`).
+    fn take_frame(&mut self, sent_at: f64, body: &[u8]) -> Result<(), NodeError> {
+        let Some(batch) = rays_in(body) else {
+            return self.take(sent_at, decode(body)?);
+        };
+        // Paths, the bulk of what arrives, are read straight from the
+        // bytes (`codec::unpack_rays`), each held as it is made.
+        let arrival = sent_at + self.model.latency;
+        let ctx = self.path_context();
+        unpack_rays(batch, &ctx, |r| {
+            self.hold(r.path.bytes());
+            self.arrive(r, arrival)
+        })
+    }
+
+    /// Takes one message but paths (`take_frame`).
     fn take(&mut self, sent_at: f64, body: ToNode) -> Result<(), NodeError> {
         let arrival = sent_at + self.model.latency;
         match body {
-            ToNode::Rays(batch) => {
-                // Held as `path_bytes` until now: hold what they take.
-                let estimate = batch.path_bytes();
-                let ctx = self.path_context();
-                unpack_each(batch, &ctx, |r| {
-                    self.hold(r.path.bytes());
-                    self.arrive(r, arrival)
-                })?;
-                self.release(estimate);
-            }
+            // `take_frame` reads paths from their bytes.
+            ToNode::Rays(_) => return Err("a batch of paths decoded whole".into()),
             ToNode::Credit(n) => self.arriving_credits.push_back((arrival, n)),
             ToNode::Stop => self.stopping = true,
             ToNode::Clock { from } => {
