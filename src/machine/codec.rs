@@ -348,19 +348,25 @@ enum WireJob {
         weight: [f32; 3],
         leaving: Option<PrimId>,
     },
-    /// Any other ray of the path's pixel; `t_max` None for infinity.
-    Ray {
-        kind: u8,
-        origin: [f64; 3],
-        dir: [f64; 3],
-        depth: u8,
-        weight: [f32; 3],
-        t_max: Option<f64>,
-        leaving: Option<PrimId>,
-    },
+    /// Any other ray of the path's pixel.
+    Ray(WireRay),
     /// A ray of another pixel (the shader makes none; kept so that packing
     /// never loses anything).
     Whole(RayJob),
+}
+
+/// A ray of the path's pixel but a shadow ray toward a light
+/// (`WireJob::Ray`); `t_max` None for infinity. (A struct in a variant is
+/// the same bytes as a variant's fields.)
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
+struct WireRay {
+    kind: u8,
+    origin: [f64; 3],
+    dir: [f64; 3],
+    depth: u8,
+    weight: [f32; 3],
+    t_max: Option<f64>,
+    leaving: Option<PrimId>,
 }
 
 fn same(a: Vec3, b: Vec3) -> bool {
@@ -394,7 +400,7 @@ fn pack_job(j: &RayJob, pixel: u64, ctx: &PathContext) -> WireJob {
             leaving: j.leaving,
         };
     }
-    WireJob::Ray {
+    WireJob::Ray(WireRay {
         kind: kind_code(j.kind),
         origin,
         dir: j.ray.dir.to_array(),
@@ -402,7 +408,7 @@ fn pack_job(j: &RayJob, pixel: u64, ctx: &PathContext) -> WireJob {
         weight: j.weight,
         t_max: (j.t_max != f64::INFINITY).then_some(j.t_max),
         leaving: j.leaving,
-    }
+    })
 }
 
 fn unpack_job(w: WireJob, pixel: u32, ctx: &PathContext) -> Result<RayJob, String> {
@@ -429,24 +435,16 @@ fn unpack_job(w: WireJob, pixel: u32, ctx: &PathContext) -> Result<RayJob, Strin
                 leaving,
             }
         }
-        WireJob::Ray {
-            kind,
-            origin,
-            dir,
-            depth,
-            weight,
-            t_max,
-            leaving,
-        } => RayJob {
-            ray: Ray::new(Vec3::from_array(origin), Vec3::from_array(dir)),
+        WireJob::Ray(r) => RayJob {
+            ray: Ray::new(Vec3::from_array(r.origin), Vec3::from_array(r.dir)),
             kind: *RayKind::ALL
-                .get(kind as usize)
-                .ok_or_else(|| format!("a ray of kind {kind}, which is none"))?,
+                .get(r.kind as usize)
+                .ok_or_else(|| format!("a ray of kind {}, which is none", r.kind))?,
             pixel,
-            depth,
-            weight,
-            t_max: t_max.unwrap_or(f64::INFINITY),
-            leaving,
+            depth: r.depth,
+            weight: r.weight,
+            t_max: r.t_max.unwrap_or(f64::INFINITY),
+            leaving: r.leaving,
         },
         WireJob::Whole(j) => j,
     })
@@ -471,7 +469,7 @@ pub fn pack(paths: &[Routed], ctx: &PathContext) -> WireBatch {
 /// the allocator and copying took a tenth of the machine's CPU, much of it
 /// in such intermediate vectors.
 pub struct RaysOut<'a, 'c> {
-    pub paths: &'a [Routed],
+    pub paths: &'a [Carried],
     pub ctx: &'a PathContext<'c>,
 }
 
@@ -490,7 +488,14 @@ impl RaysOut<'_, '_> {
         let mut o = Out(out);
         o.byte(RAYS_VARIANT);
         o.uint(self.paths.len() as u64);
-        for r in self.paths {
+        for c in self.paths {
+            let r = match c {
+                Carried::Path(r) => r,
+                Carried::Passing(p) => {
+                    o.0.extend_from_slice(&p.bytes);
+                    continue;
+                }
+            };
             // Room for the path's most bytes, so that the writes below
             // do not grow the buffer one by one.
             o.0.reserve(MAX_PATH_HEAD + MAX_JOB_BYTES * (1 + r.path.stack.len()));
@@ -629,23 +634,15 @@ impl Out<'_> {
                 self.f32s(weight);
                 leaving(self, l);
             }
-            WireJob::Ray {
-                kind,
-                origin,
-                dir,
-                depth,
-                weight,
-                t_max,
-                leaving: l,
-            } => {
+            WireJob::Ray(r) => {
                 self.byte(1);
-                self.byte(kind);
-                self.f64s(origin);
-                self.f64s(dir);
-                self.byte(depth);
-                self.f32s(weight);
-                self.option(t_max, Self::f64);
-                leaving(self, l);
+                self.byte(r.kind);
+                self.f64s(r.origin);
+                self.f64s(r.dir);
+                self.byte(r.depth);
+                self.f32s(r.weight);
+                self.option(r.t_max, Self::f64);
+                leaving(self, r.leaving);
             }
             // Never made by the shader: through serde, as written whole.
             WireJob::Whole(ref job) => {
@@ -781,7 +778,7 @@ impl<'b> In<'b> {
                 weight: self.f32s()?,
                 leaving: leaving(self)?,
             },
-            1 => WireJob::Ray {
+            1 => WireJob::Ray(WireRay {
                 kind: self.byte()?,
                 origin: self.f64s()?,
                 dir: self.f64s()?,
@@ -789,7 +786,7 @@ impl<'b> In<'b> {
                 weight: self.f32s()?,
                 t_max: self.option(Self::f64)?,
                 leaving: leaving(self)?,
-            },
+            }),
             _ => {
                 let (job, used) =
                     bincode::serde::decode_from_slice(&self.bytes[self.at..], config())
@@ -800,50 +797,141 @@ impl<'b> In<'b> {
         })
     }
 
-    /// A path (`RaysOut::write`), unpacked, `spp` samples to a pixel.
-    fn routed(&mut self, spp: u64, ctx: &PathContext) -> Result<Routed, String> {
-        let dest = self.u16()?;
-        let hops = self.byte()?;
-        let sample = self.uint(8)?;
-        let origin = self.u16()?;
-        let sum = [self.int()?, self.int()?, self.int()?];
-        let flags = self.u32()?;
-        let number = self.u32()?;
-        let t_min = self.option(Self::f64)?;
-        let at = self.option(|i| {
-            let cell = i.u32()?;
-            let entry = match i.variant(4, "a walk point's entry")? {
-                0 => WireEntry::AcrossX,
-                1 => WireEntry::AcrossY,
-                2 => WireEntry::AcrossDepth,
-                _ => WireEntry::At(i.f64()?),
-            };
-            Ok(WireAt { cell, entry })
-        })?;
-        let pixel = pixel_of(sample, spp)?;
-        let active = unpack_job(self.job()?, pixel, ctx)?;
+    /// A path's fields before its rays (`RaysOut::write`).
+    fn head(&mut self) -> Result<WireRouted<(), ()>, String> {
+        Ok(WireRouted {
+            dest: self.u16()?,
+            hops: self.byte()?,
+            sample: self.uint(8)?,
+            origin: self.u16()?,
+            sum: [self.int()?, self.int()?, self.int()?],
+            flags: self.u32()?,
+            number: self.u32()?,
+            t_min: self.option(Self::f64)?,
+            at: self.option(|i| {
+                let cell = i.u32()?;
+                let entry = match i.variant(4, "a walk point's entry")? {
+                    0 => WireEntry::AcrossX,
+                    1 => WireEntry::AcrossY,
+                    2 => WireEntry::AcrossDepth,
+                    _ => WireEntry::At(i.f64()?),
+                };
+                Ok(WireAt { cell, entry })
+            })?,
+            active: (),
+            stack: (),
+        })
+    }
+
+    /// A stack's length, no more than its message has room for.
+    fn stack_len(&mut self) -> Result<(u64, usize), String> {
         let n = self.uint(8)?;
         let room = (self.bytes.len() - self.at) / MIN_JOB_BYTES;
-        let mut stack = Vec::with_capacity(usize::try_from(n).unwrap_or(usize::MAX).min(room));
+        Ok((n, usize::try_from(n).unwrap_or(usize::MAX).min(room)))
+    }
+
+    /// A path (`RaysOut::write`), unpacked, `spp` samples to a pixel.
+    fn routed(&mut self, spp: u64, ctx: &PathContext) -> Result<Routed, String> {
+        let head = self.head()?;
+        let pixel = pixel_of(head.sample, spp)?;
+        let active = unpack_job(self.job()?, pixel, ctx)?;
+        let (n, room) = self.stack_len()?;
+        let mut stack = Vec::with_capacity(room);
         for _ in 0..n {
             stack.push(unpack_job(self.job()?, pixel, ctx)?);
         }
-        routed_from(
-            WireRouted {
-                dest,
-                hops,
-                sample,
-                origin,
-                sum,
-                flags,
-                number,
-                t_min,
-                at,
-                active,
-                stack,
-            },
-            ctx,
-        )
+        routed_from(head, active, stack, ctx)
+    }
+
+    /// A path passing through (`Passing`): read to its end, so that its
+    /// bytes are known to be one whole path, and kept as they are.
+    fn passing(&mut self) -> Result<Passing, String> {
+        let start = self.at;
+        let head = self.head()?;
+        self.job()?;
+        let (n, _) = self.stack_len()?;
+        for _ in 0..n {
+            self.job()?;
+        }
+        Ok(Passing {
+            dest: head.dest,
+            sample: head.sample,
+            bytes: self.bytes[start..self.at].into(),
+        })
+    }
+}
+
+/// A path passing through a node on its way to `dest` (e-cube routing),
+/// kept as the bytes it arrived in (`unpack_rays`): the node that passes
+/// it on needs only where it goes and its sample (the order of its
+/// queue), and writes the bytes out again with one more hop
+/// (`Passing::add_hop`). Unpacking and packing it again, as the node that
+/// traces it will, took a third of the codec's time where a third of the
+/// hops are such passes (`glass.ron`, `house.ron` on 32 nodes).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Passing {
+    pub dest: u16,
+    pub sample: u64,
+    bytes: Box<[u8]>,
+}
+
+impl Passing {
+    /// The bytes a node holds for it.
+    pub fn held(&self) -> usize {
+        std::mem::size_of::<Passing>() + self.bytes.len()
+    }
+
+    /// Counts one more link crossed: the hop count is the byte after the
+    /// destination (one byte below `U16_MARK`, else the marker and two).
+    pub fn add_hop(&mut self) -> Result<(), String> {
+        let at = if self.bytes[0] < U16_MARK { 1 } else { 3 };
+        self.bytes[at] = self.bytes[at]
+            .checked_add(1)
+            .ok_or("a path past 255 hops")?;
+        Ok(())
+    }
+}
+
+/// A path as a node holds it: its own to trace (or to send on, once
+/// traced), or one passing through.
+#[derive(Clone, Debug)]
+pub enum Carried {
+    Path(Routed),
+    Passing(Passing),
+}
+
+impl Carried {
+    pub fn dest(&self) -> u16 {
+        match self {
+            Carried::Path(r) => r.dest,
+            Carried::Passing(p) => p.dest,
+        }
+    }
+
+    pub fn sample(&self) -> u64 {
+        match self {
+            Carried::Path(r) => r.path.sample,
+            Carried::Passing(p) => p.sample,
+        }
+    }
+
+    /// The bytes a node holds for it (`Path::bytes`, `Passing::held`).
+    pub fn held(&self) -> usize {
+        match self {
+            Carried::Path(r) => r.path.bytes(),
+            Carried::Passing(p) => p.held(),
+        }
+    }
+
+    /// Counts one more link crossed (`Routed::hops`).
+    pub fn add_hop(&mut self) -> Result<(), String> {
+        match self {
+            Carried::Path(r) => {
+                r.hops = r.hops.checked_add(1).ok_or("a path past 255 hops")?;
+                Ok(())
+            }
+            Carried::Passing(p) => p.add_hop(),
+        }
     }
 }
 
@@ -856,16 +944,18 @@ pub fn rays_in(body: &[u8]) -> Option<&[u8]> {
     }
 }
 
-/// The paths of a batch (`rays_in`), exactly as they were packed, each
-/// handed to `take` as it is read from the bytes, with no decoded batch
-/// or per-path vector of wire rays between; an error for bytes that are
-/// not such a batch, or name a light, kind or cell the node does not have.
-/// Stops at the first error, of the batch or of `take`, the paths before
-/// it taken.
+/// The paths of a batch (`rays_in`) as node `me` takes them, each handed
+/// to `take` as it is read from the bytes, with no decoded batch or
+/// per-path vector of wire rays between: a path to `me` exactly as it was
+/// packed, any other passing through as its bytes (`Passing`). An error
+/// for bytes that are not such a batch, or a path to `me` that names a
+/// light, kind or cell the node does not have. Stops at the first error,
+/// of the batch or of `take`, the paths before it taken.
 pub fn unpack_rays(
     batch: &[u8],
     ctx: &PathContext,
-    mut take: impl FnMut(Routed) -> Result<(), String>,
+    me: u16,
+    mut take: impl FnMut(Carried) -> Result<(), String>,
 ) -> Result<(), String> {
     let spp = u64::from(ctx.spp.max(1));
     let mut input = In {
@@ -874,7 +964,16 @@ pub fn unpack_rays(
     };
     let n = input.uint(8)?;
     for _ in 0..n {
-        take(input.routed(spp, ctx)?)?;
+        // Its destination first, to tell a path to trace here from one
+        // passing through (`Passing`).
+        let start = input.at;
+        let dest = input.u16()?;
+        input.at = start;
+        take(if dest == me {
+            Carried::Path(input.routed(spp, ctx)?)
+        } else {
+            Carried::Passing(input.passing()?)
+        })?;
     }
     if input.at != batch.len() {
         return Err(format!(
@@ -939,9 +1038,13 @@ fn pixel_of(sample: u64, spp: u64) -> Result<u32, String> {
     u32::try_from(sample / spp).map_err(|_| format!("sample {sample} is past every pixel"))
 }
 
-/// A path from its wire form, its rays unpacked (`unpack_job`).
-fn routed_from(w: WireRouted<Vec<RayJob>, RayJob>, ctx: &PathContext) -> Result<Routed, String> {
-    let job = w.active;
+/// A path from its wire form's fields (`In::head`) and its rays, unpacked.
+fn routed_from(
+    w: WireRouted<(), ()>,
+    job: RayJob,
+    stack: Vec<RayJob>,
+    ctx: &PathContext,
+) -> Result<Routed, String> {
     let at = match w.at {
         None => None,
         Some(a) => {
@@ -967,7 +1070,6 @@ fn routed_from(w: WireRouted<Vec<RayJob>, RayJob>, ctx: &PathContext) -> Result<
             Some(p)
         }
     };
-    let stack = w.stack;
     Ok(Routed {
         dest: w.dest,
         hops: w.hops,
@@ -1396,7 +1498,7 @@ mod tests {
             panic!("streamed paths decode as another message");
         };
         assert_eq!(format!("{again:?}"), format!("{batch:?}"));
-        let back_again = read_rays(&streamed, &ctx).unwrap();
+        let back_again = read_rays(&streamed, &ctx, 3).unwrap();
         assert_eq!(format!("{paths:?}"), format!("{back_again:?}"));
         for r in &back_again {
             // Its memory is counted by its capacity (`Path::bytes`).
@@ -1419,28 +1521,47 @@ mod tests {
             lights: &scene.lights[..1],
             ..ctx
         };
-        assert!(read_rays(&streamed, &one_light).is_err());
+        assert!(read_rays(&streamed, &one_light, 3).is_err());
         let mut far = paths[0].clone();
         far.path.active.at.as_mut().unwrap().cell = last + 1;
-        assert!(read_rays(&rays_bytes(&[far], &ctx), &ctx).is_err());
+        assert!(read_rays(&rays_bytes(&[far], &ctx), &ctx, 3).is_err());
+    }
+
+    /// `RaysOut::write`'s bytes for paths a node holds decoded.
+    fn rays_bytes(paths: &[Routed], ctx: &PathContext) -> Vec<u8> {
+        carried_bytes(
+            &paths.iter().cloned().map(Carried::Path).collect::<Vec<_>>(),
+            ctx,
+        )
     }
 
     /// `RaysOut::write`'s bytes.
-    fn rays_bytes(paths: &[Routed], ctx: &PathContext) -> Vec<u8> {
+    fn carried_bytes(paths: &[Carried], ctx: &PathContext) -> Vec<u8> {
         let mut out = Vec::new();
         RaysOut { paths, ctx }.write(&mut out).unwrap();
         out
     }
 
-    /// `unpack_rays` of a message's bytes, gathered.
-    fn read_rays(bytes: &[u8], ctx: &PathContext) -> Result<Vec<Routed>, String> {
+    /// `unpack_rays` of a message's bytes by node `me`, gathered.
+    fn read_carried(bytes: &[u8], ctx: &PathContext, me: u16) -> Result<Vec<Carried>, String> {
         let batch = rays_in(bytes).ok_or("not a batch of paths")?;
         let mut paths = Vec::new();
-        unpack_rays(batch, ctx, |r| {
-            paths.push(r);
+        unpack_rays(batch, ctx, me, |c| {
+            paths.push(c);
             Ok(())
         })?;
         Ok(paths)
+    }
+
+    /// `read_carried` of paths to `me` alone.
+    fn read_rays(bytes: &[u8], ctx: &PathContext, me: u16) -> Result<Vec<Routed>, String> {
+        read_carried(bytes, ctx, me)?
+            .into_iter()
+            .map(|c| match c {
+                Carried::Path(r) => Ok(r),
+                Carried::Passing(p) => Err(format!("a path to {} passing", p.dest)),
+            })
+            .collect()
     }
 
     /// Paths read by hand (`unpack_rays`) as bincode's serde reads them,
@@ -1518,17 +1639,41 @@ mod tests {
         let bytes = rays_bytes(&paths, &ctx);
         let batch = pack(&paths, &ctx);
         assert_eq!(bytes, encode(&ToNode::Rays(batch)).unwrap());
-        assert_eq!(
-            format!("{:?}", read_rays(&bytes, &ctx).unwrap()),
-            format!("{paths:?}")
-        );
+        // Node 65535 unpacks the paths to it, and keeps the others, passing
+        // through, as their own bytes: written on with a hop more, they are
+        // the bytes of the path with a hop more.
+        let me = u16::MAX;
+        let read = read_carried(&bytes, &ctx, me).unwrap();
+        assert_eq!(read.len(), paths.len());
+        let mut passing = 0;
+        for (c, r) in read.iter().zip(&paths) {
+            let mut on = r.clone();
+            on.hops += 1;
+            let mut c = c.clone();
+            c.add_hop().unwrap();
+            assert_eq!(carried_bytes(&[c.clone()], &ctx), rays_bytes(&[on], &ctx));
+            match c {
+                Carried::Path(mut q) => {
+                    assert_eq!(r.dest, me);
+                    q.hops -= 1;
+                    assert_eq!(format!("{q:?}"), format!("{r:?}"));
+                }
+                Carried::Passing(p) => {
+                    passing += 1;
+                    assert_ne!(r.dest, me);
+                    assert_eq!((p.dest, p.sample), (r.dest, r.path.sample));
+                    assert!(p.held() <= r.path.bytes());
+                }
+            }
+        }
+        assert!(passing >= 3 && passing < paths.len(), "{passing}");
         // Every cut is an error; so is a byte more.
         for n in 1..bytes.len() {
-            assert!(read_rays(&bytes[..n], &ctx).is_err(), "cut at {n}");
+            assert!(read_carried(&bytes[..n], &ctx, me).is_err(), "cut at {n}");
         }
         let mut longer = bytes.clone();
         longer.push(0);
-        assert!(read_rays(&longer, &ctx).is_err());
+        assert!(read_carried(&longer, &ctx, me).is_err());
         // Any byte changed: bytes serde cannot read, the hand reader
         // refuses too; what it reads, serde reads as paths with the same
         // numbers and as many rays. (It also refuses lights, kinds and
@@ -1540,23 +1685,31 @@ mod tests {
             for x in [1u8, 2, 4, 7, 0x80, 0xff] {
                 let mut b = bytes.clone();
                 b[n] ^= x;
-                let hand = read_rays(&b, &ctx);
+                let hand = read_carried(&b, &ctx, me);
                 match decode::<ToNode>(&b) {
                     Ok(ToNode::Rays(WireBatch(w))) => {
                         let Ok(p) = hand else { continue };
                         both += 1;
-                        let numbers = |r: &Routed| {
+                        // A path passing through: where it goes and its
+                        // sample; one unpacked: its numbers too.
+                        let numbers = |c: &Carried| {
+                            let Carried::Path(r) = c else {
+                                return (c.dest(), c.sample(), None);
+                            };
                             let q = &r.path;
                             let flags = u32::from(q.forks) << 1 | u32::from(q.leaf);
                             let t = q.active.t_min;
                             let t_min = (t.to_bits() != 0).then_some(t.to_bits());
-                            let n = (r.dest, r.hops, q.sample, q.origin, q.sum, flags);
-                            (n, q.active.number, t_min, q.stack.len())
+                            let n = (r.hops, q.origin, q.sum, flags, q.active.number);
+                            (r.dest, q.sample, Some((n, t_min, q.stack.len())))
                         };
                         let wire = |r: &WireRouted| {
-                            let n = (r.dest, r.hops, r.sample, r.origin, r.sum, r.flags);
+                            if r.dest != me {
+                                return (r.dest, r.sample, None);
+                            }
+                            let n = (r.hops, r.origin, r.sum, r.flags, r.number);
                             let t_min = r.t_min.filter(|t| t.to_bits() != 0).map(f64::to_bits);
-                            (n, r.number, t_min, r.stack.len())
+                            (r.dest, r.sample, Some((n, t_min, r.stack.len())))
                         };
                         let ours: Vec<_> = p.iter().map(numbers).collect();
                         let serde: Vec<_> = w.iter().map(wire).collect();
@@ -1624,17 +1777,27 @@ mod tests {
                     leaf: true,
                 },
             };
+            let paths = [Carried::Path(r)];
             let out = RaysOut {
-                paths: std::slice::from_ref(&r),
+                paths: &paths,
                 ctx: &ctx,
             };
-            let len = append_frame(&mut Vec::new(), |b| out.write(b), |_| 0.0).unwrap();
+            let mut frame = Vec::new();
+            let len = append_frame(&mut frame, |b| out.write(b), |_| 0.0).unwrap();
             let decoded = std::mem::size_of::<Path>() + n * std::mem::size_of::<RayJob>();
             assert!(
                 len.held <= decoded,
                 "{n} rays: frame {} bytes, decoded {decoded}",
                 len.held
             );
+            // Passing through a node, the path is held as its bytes: no
+            // more than decoded either.
+            let mut bytes = Vec::new();
+            out.write(&mut bytes).unwrap();
+            let [Carried::Passing(p)] = &read_carried(&bytes, &ctx, 0).unwrap()[..] else {
+                panic!("a path to node {} does not pass node 0", u16::MAX);
+            };
+            assert!(p.held() <= decoded, "{n} rays: held {}", p.held());
         }
     }
 }

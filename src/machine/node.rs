@@ -25,7 +25,7 @@ use std::cmp::Ordering;
 use std::collections::{BinaryHeap, VecDeque};
 
 use super::codec::{
-    PathContext, RaysOut, WireDone, append_frame, append_stamped, decode, encode_into,
+    Carried, PathContext, RaysOut, WireDone, append_frame, append_stamped, decode, encode_into,
     for_each_frame_body, pack_done_into, rays_in, restamp, unpack_rays,
 };
 use super::host::stack_bound;
@@ -306,11 +306,11 @@ struct Queue {
 }
 
 impl Queue {
-    fn push(&mut self, arrival: f64, r: Routed) {
+    fn push(&mut self, arrival: f64, c: Carried) {
         self.heap.push(Queued {
             arrival,
-            sample: r.path.sample,
-            routed: Box::new(r),
+            sample: c.sample(),
+            carried: Box::new(c),
         });
     }
 
@@ -320,8 +320,8 @@ impl Queue {
     }
 
     /// The earliest path and its arrival.
-    fn pop(&mut self) -> Option<(f64, Routed)> {
-        self.heap.pop().map(|q| (q.arrival, *q.routed))
+    fn pop(&mut self) -> Option<(f64, Carried)> {
+        self.heap.pop().map(|q| (q.arrival, *q.carried))
     }
 }
 
@@ -329,7 +329,7 @@ impl Queue {
 struct Queued {
     arrival: f64,
     sample: u64,
-    routed: Box<Routed>,
+    carried: Box<Carried>,
 }
 
 impl Ord for Queued {
@@ -381,7 +381,7 @@ struct Node<'a> {
     queue: Queue,
     /// Per link (dimensions, then the host): paths to batch, encoded
     /// messages waiting for room.
-    batches: Vec<Vec<Routed>>,
+    batches: Vec<Vec<Carried>>,
     /// Per link, when its open batch got its first path (virtual time).
     opened: Vec<f64>,
     /// When the open batch of finished samples got its first record that
@@ -868,9 +868,10 @@ impl<'a> Node<'a> {
         // bytes (`codec::unpack_rays`), each held as it is made.
         let arrival = sent_at + self.model.latency;
         let ctx = self.path_context();
-        unpack_rays(batch, &ctx, |r| {
-            self.hold(r.path.bytes());
-            self.arrive(r, arrival)
+        let me = self.id;
+        unpack_rays(batch, &ctx, me, |c| {
+            self.hold(c.held());
+            self.arrive(c, arrival)
         })
     }
 
@@ -895,27 +896,27 @@ impl<'a> Node<'a> {
 
     /// A path arriving over a link (its bytes held): ours to trace, or to
     /// pass on.
-    fn arrive(&mut self, r: Routed, arrival: f64) -> Result<(), NodeError> {
+    fn arrive(&mut self, c: Carried, arrival: f64) -> Result<(), NodeError> {
         // Paths to pass on wait their turn too: the iPSC's routing is done
         // by the node's processor, in the order messages arrive in virtual
         // time (taking one early would push the clock past work that
         // arrived before it).
-        self.queue.push(arrival, r);
+        self.queue.push(arrival, c);
         Ok(())
     }
 
     /// Puts a path (its bytes held) in the batch of the next link toward
     /// its destination.
-    fn route(&mut self, mut r: Routed) -> Result<(), NodeError> {
-        let k = next_dimension(NodeId(self.id), NodeId(r.dest))
+    fn route(&mut self, mut c: Carried) -> Result<(), NodeError> {
+        let k = next_dimension(NodeId(self.id), NodeId(c.dest()))
             .ok_or("routing a path to its own node")?;
-        r.hops += 1;
+        c.add_hop()?;
         self.report.hops += 1;
         let i = k as usize;
         if self.batches[i].is_empty() {
             self.opened[i] = self.clock;
         }
-        self.batches[i].push(r);
+        self.batches[i].push(c);
         self.seal_if_due(i)
     }
 
@@ -976,16 +977,17 @@ impl<'a> Node<'a> {
                 _ => {}
             }
         }
-        if let Some((arrival, routed)) = self.queue.pop() {
+        if let Some((arrival, carried)) = self.queue.pop() {
             self.report.waiting_seconds += (arrival - self.clock).max(0.0);
             self.clock = self.clock.max(arrival);
-            if routed.dest == self.id {
-                self.trace(routed.path)?;
-            } else {
-                // Passing a path on costs the modelled node a message
-                // start-up (`send_cost`), not the host's time to do it.
-                self.report.paths_forwarded += 1;
-                self.excluding(|n| n.route(routed))?;
+            match carried {
+                Carried::Path(r) if r.dest == self.id => self.trace(r.path)?,
+                passing => {
+                    // Passing a path on costs the modelled node a message
+                    // start-up (`send_cost`), not the host's time to do it.
+                    self.report.paths_forwarded += 1;
+                    self.excluding(|n| n.route(passing))?;
+                }
             }
             return Ok(true);
         }
@@ -1065,11 +1067,11 @@ impl<'a> Node<'a> {
                     let dest = self.share.owner[p.region as usize][p.super_cell as usize];
                     if !(shadow && !path.stack.is_empty() && path.forks < MAX_FORKS) {
                         // Its bytes move, held, into the batch.
-                        return self.route(Routed {
+                        return self.route(Carried::Path(Routed {
                             dest,
                             hops: 0,
                             path,
-                        });
+                        }));
                     }
                     // A shadow ray leaving while rays wait behind it: it
                     // goes on alone, as a leaf that can spawn nothing, and
@@ -1087,11 +1089,11 @@ impl<'a> Node<'a> {
                         leaf: true,
                     };
                     self.hold(leaf.bytes());
-                    self.route(Routed {
+                    self.route(Carried::Path(Routed {
                         dest,
                         hops: 0,
                         path: leaf,
-                    })?;
+                    }))?;
                     let job = path
                         .stack
                         .pop()
@@ -1297,7 +1299,7 @@ impl<'a> Node<'a> {
         if paths.is_empty() {
             return Ok(());
         }
-        let held: usize = paths.iter().map(|r| r.path.bytes()).sum();
+        let held: usize = paths.iter().map(Carried::held).sum();
         // Packed as it is encoded (`RaysOut`): the link model's work, not
         // the node's compute (`enqueue` takes it off).
         let ctx = self.path_context();
