@@ -656,7 +656,7 @@ impl Out<'_> {
 }
 
 /// Reads what `Out` writes, as bincode reads it: an integer's marker must
-/// fit its type, an option's and a bool's byte be 0 or 1, a variant index
+/// fit its type, an option's byte be 0 or 1, a variant index
 /// name a variant.
 struct In<'b> {
     bytes: &'b [u8],
