@@ -896,7 +896,9 @@ impl Passing {
 /// traced), or one passing through.
 #[derive(Clone, Debug)]
 pub enum Carried {
-    Path(Routed),
+    /// Boxed, so that a passing path, whose bytes are on the heap
+    /// already, takes no second allocation where a node queues it.
+    Path(Box<Routed>),
     Passing(Passing),
 }
 
@@ -970,7 +972,7 @@ pub fn unpack_rays(
         let dest = input.u16()?;
         input.at = start;
         take(if dest == me {
-            Carried::Path(input.routed(spp, ctx)?)
+            Carried::Path(Box::new(input.routed(spp, ctx)?))
         } else {
             Carried::Passing(input.passing()?)
         })?;
@@ -1530,7 +1532,10 @@ mod tests {
     /// `RaysOut::write`'s bytes for paths a node holds decoded.
     fn rays_bytes(paths: &[Routed], ctx: &PathContext) -> Vec<u8> {
         carried_bytes(
-            &paths.iter().cloned().map(Carried::Path).collect::<Vec<_>>(),
+            &paths
+                .iter()
+                .map(|r| Carried::Path(Box::new(r.clone())))
+                .collect::<Vec<_>>(),
             ctx,
         )
     }
@@ -1558,7 +1563,7 @@ mod tests {
         read_carried(bytes, ctx, me)?
             .into_iter()
             .map(|c| match c {
-                Carried::Path(r) => Ok(r),
+                Carried::Path(r) => Ok(*r),
                 Carried::Passing(p) => Err(format!("a path to {} passing", p.dest)),
             })
             .collect()
@@ -1777,7 +1782,7 @@ mod tests {
                     leaf: true,
                 },
             };
-            let paths = [Carried::Path(r)];
+            let paths = [Carried::Path(Box::new(r))];
             let out = RaysOut {
                 paths: &paths,
                 ctx: &ctx,
