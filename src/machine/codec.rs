@@ -257,11 +257,11 @@ pub struct PathContext<'a> {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct WireBatch(Vec<WireRouted>);
 
-/// A path on the wire, its stack a vector of wire rays (`S`, `A`: as
-/// serde sees it). Written by a node, the stack is packed as it is
-/// written (`StackOut`); read, its rays are unpacked as they are read
-/// (`In::routed`, into `Vec<RayJob>` and `RayJob`). The same bytes: a
-/// sequence. (A small vector holding four rays in place, to spare the
+/// A path on the wire, its stack a vector of wire rays (as serde sees
+/// it). Written by a node, the stack is packed as it is written
+/// (`StackOut`); read, the fields before the rays come alone (`S`, `A`
+/// unit, `In::head`) and the rays are unpacked as they are read
+/// (`In::routed`). The same bytes: a sequence. (A small vector holding four rays in place, to spare the
 /// decoder an allocation per path, made the jagged ball's d = 5 render
 /// 3-4% slower: the larger paths cost more to move than the allocations
 /// saved.)
@@ -516,12 +516,15 @@ impl RaysOut<'_, '_> {
             o.option(w.t_min, Out::f64);
             o.option(w.at, |o, a| {
                 o.uint(a.cell.into());
+                // `WireEntry`'s variant index, and `At`'s parameter.
                 match a.entry {
+                    WireEntry::AcrossX => o.byte(0),
+                    WireEntry::AcrossY => o.byte(1),
+                    WireEntry::AcrossDepth => o.byte(2),
                     WireEntry::At(t) => {
                         o.byte(3);
                         o.f64(t);
                     }
-                    face => o.byte(face_code(face)),
                 }
             });
             o.job(&w.active)?;
@@ -531,16 +534,6 @@ impl RaysOut<'_, '_> {
             }
         }
         Ok(())
-    }
-}
-
-/// A face's variant index in `WireEntry` (`At` is 3).
-fn face_code(e: WireEntry) -> u8 {
-    match e {
-        WireEntry::AcrossX => 0,
-        WireEntry::AcrossY => 1,
-        WireEntry::AcrossDepth => 2,
-        WireEntry::At(_) => 3,
     }
 }
 
@@ -554,8 +547,10 @@ fn face_code(e: WireEntry) -> u8 {
 struct Out<'v>(&'v mut Vec<u8>);
 
 /// The most bytes of a path's fields before its rays (`RaysOut::write`):
-/// nine integers of up to 9 bytes, `hops`, and two options of a float.
-const MAX_PATH_HEAD: usize = 9 * 9 + 1 + 2 * 9 + 9;
+/// nine integers of up to 9 bytes (the walk point's cell among them),
+/// `hops`, `t_min` (a tag and a float) and the walk point's tag, entry
+/// and parameter.
+const MAX_PATH_HEAD: usize = 9 * 9 + 1 + (1 + 8) + (1 + 1 + 8);
 /// The most bytes of a ray but one sent whole (`WireJob::Ray`).
 const MAX_JOB_BYTES: usize = 1 + 1 + 24 + 24 + 1 + 12 + 9 + 6;
 
@@ -651,8 +646,7 @@ impl Out<'_> {
             // Never made by the shader: through serde, as written whole.
             WireJob::Whole(ref job) => {
                 self.byte(2);
-                bincode::serde::encode_into_std_write(job, self.0, config())
-                    .map_err(|e| format!("cannot encode: {e}"))?;
+                encode_into(self.0, job)?;
             }
         }
         Ok(())
