@@ -295,10 +295,10 @@ fn shadows_on_top(spawned: &mut [RayJob]) {
 ///
 /// Each path is boxed (`Carried::Path`; a path passing through keeps its
 /// bytes on the heap, `Passing`): the heap moves its entries at every
-/// push and pop, and a path is some 200 bytes. The sphereflake at 384x384
-/// on 32 nodes, under callgrind: the heap's pushes, pops and copies took 705 million
-/// instructions with the paths inline, 453 million boxed, against 2.5
-/// billion in the walk. (Reused slots instead of boxes saved another 3%
+/// push and pop, and a path is some 200 bytes. The sphereflake at
+/// 384x384 on 32 nodes, under callgrind: the heap's pushes, pops and
+/// copies took 705 million instructions with the paths inline, 453
+/// million boxed, against 2.5 billion in the walk. (Reused slots instead of boxes saved another 3%
 /// of a render's instructions, but a freed slot is memory the node keeps
 /// beyond its paths, which the memory plan does not size for.)
 #[derive(Default)]
