@@ -74,6 +74,21 @@ pub struct Event {
     boundary: Boundary,
 }
 
+impl Event {
+    /// A placeholder for `combine`'s stack of ends.
+    const NONE: Event = Event {
+        t: 0.0,
+        child: 0,
+        delta: 0,
+        boundary: Boundary {
+            t: 0.0,
+            prim: PrimId(0),
+            part: 0,
+            flip: false,
+        },
+    };
+}
+
 /// Scratch space for `combine`, reused across calls so that the inner loop
 /// does not allocate.
 #[derive(Default, Debug)]
@@ -106,31 +121,66 @@ pub fn combine(op: Op, children: &[SpanList], out: &mut SpanList, scratch: &mut 
         for c in children {
             out.sheets.extend_from_slice(&c.sheets);
         }
-        if children.len() > 1 {
+        if out.sheets.len() > 1 {
             out.sheets.sort_by(|a, b| a.t.total_cmp(&b.t));
         }
+    }
+    if let [a, b] = children
+        && let ([a], [b]) = (&a.spans[..], &b.spans[..])
+    {
+        // Most combinations are of two single spans (a cell's subtree in
+        // its window: A − B, A ∪ B); their sweep, worked out.
+        two_spans(op, a, b, out);
+        return;
+    }
+    combine_by_sweep(op, children, out, scratch);
+}
+
+/// `combine`'s spans by the sweep itself, for any children (`out`'s
+/// sheets already combined, its spans empty).
+fn combine_by_sweep(
+    op: Op,
+    children: &[SpanList],
+    out: &mut SpanList,
+    scratch: &mut CombineScratch,
+) {
+    let ends = 2 * children.iter().map(|c| c.spans.len()).sum::<usize>();
+    if ends <= SMALL_ENDS && children.len() <= SMALL_CHILDREN {
+        // Most other combinations have a few spans (three operands of a
+        // cell's subtree in the window, a union of a span and two): the
+        // same sweep over ends kept on the stack, without the scratch
+        // vectors' bookkeeping.
+        let mut events = [Event::NONE; SMALL_ENDS];
+        let mut m = 0;
+        for (i, c) in children.iter().enumerate() {
+            for s in &c.spans {
+                for e in ends_of(op, i, s) {
+                    events[m] = e;
+                    m += 1;
+                }
+            }
+        }
+        let events = &mut events[..m];
+        // Insertion sort, stable as `sort_by` is (an end moves only past
+        // greater ones).
+        for k in 1..events.len() {
+            let e = events[k];
+            let mut j = k;
+            while j > 0 && events[j - 1].t.total_cmp(&e.t).is_gt() {
+                events[j] = events[j - 1];
+                j -= 1;
+            }
+            events[j] = e;
+        }
+        let mut depth = [0i32; SMALL_CHILDREN];
+        sweep(op, events, &mut depth[..children.len()], out);
+        return;
     }
     let events = &mut scratch.events;
     events.clear();
     for (i, c) in children.iter().enumerate() {
-        let flip = op == Op::Difference && i > 0;
         for s in &c.spans {
-            let mut enter = s.enter;
-            let mut exit = s.exit;
-            enter.flip ^= flip;
-            exit.flip ^= flip;
-            events.push(Event {
-                t: enter.t,
-                child: i as u32,
-                delta: 1,
-                boundary: enter,
-            });
-            events.push(Event {
-                t: exit.t,
-                child: i as u32,
-                delta: -1,
-                boundary: exit,
-            });
+            events.extend(ends_of(op, i, s));
         }
     }
     // Stable sort by t keeps, among equal t, the order (child, span order),
@@ -139,7 +189,134 @@ pub fn combine(op: Op, children: &[SpanList], out: &mut SpanList, scratch: &mut 
     let depth = &mut scratch.depth;
     depth.clear();
     depth.resize(children.len(), 0);
-    let n = children.len();
+    sweep(op, events, depth, out);
+}
+
+/// `combine`'s sweep for two children of one span each, `a` of the first
+/// child and `b` of the second, into `out`'s spans (cleared).
+///
+/// The sweep sorts the four ends by `t` (`total_cmp`, stably: `a`'s ends
+/// before `b`'s on equal keys), applies the ends of equal `t` (`==`) as one
+/// group, and where membership changes keeps the group's first end that
+/// moves it that way. An end of `b` can share a group with one of `a`
+/// only, so each choice below is between two ends: `first(x, y)`, whether
+/// the sweep's order puts `a`'s end (at `x`) before `b`'s (at `y`). Only
+/// a signed zero makes that differ from "`a`'s end first" in a group:
+/// `total_cmp` puts −0 before +0, `==` groups them.
+#[inline]
+fn two_spans(op: Op, a: &Span, b: &Span, out: &mut SpanList) {
+    let first = |x: f64, y: f64| x.total_cmp(&y).is_le();
+    let (a0, a1, b0, b1) = (a.enter.t, a.exit.t, b.enter.t, b.exit.t);
+    let mut push = |enter: Boundary, exit: Boundary| out.spans.push(Span { enter, exit });
+    match op {
+        Op::Union | Op::Assembly => {
+            if a0 <= b1 && b0 <= a1 {
+                // Overlapping or touching: one span, from the earlier entry
+                // to the later exit; a touching pair's shared group changes
+                // nothing.
+                let enter = if a0 < b0 || (a0 == b0 && first(a0, b0)) {
+                    a.enter
+                } else {
+                    b.enter
+                };
+                let exit = if a1 > b1 || (a1 == b1 && first(a1, b1)) {
+                    a.exit
+                } else {
+                    b.exit
+                };
+                push(enter, exit);
+            } else if a1 < b0 {
+                push(a.enter, a.exit);
+                push(b.enter, b.exit);
+            } else {
+                push(b.enter, b.exit);
+                push(a.enter, a.exit);
+            }
+        }
+        Op::Intersection => {
+            // From the later entry to the earlier exit, if that is a span;
+            // an entry and an exit at the same `t` change nothing.
+            let (lo, enter) = if a0 > b0 || (a0 == b0 && first(a0, b0)) {
+                (a0, a.enter)
+            } else {
+                (b0, b.enter)
+            };
+            let (hi, exit) = if a1 < b1 || (a1 == b1 && first(a1, b1)) {
+                (a1, a.exit)
+            } else {
+                (b1, b.exit)
+            };
+            if lo < hi {
+                push(enter, exit);
+            }
+        }
+        Op::Difference => {
+            // `b`'s ends are cut surfaces.
+            let cut = |x: Boundary| Boundary { flip: !x.flip, ..x };
+            if b1 <= a0 || b0 >= a1 {
+                // `b` leaves `a` whole. At a shared `t` the entry may be
+                // `b`'s exit, or the exit `b`'s entry: whichever the sweep
+                // has first, as both move membership the same way.
+                let enter = if b1 == a0 && !first(a0, b1) {
+                    cut(b.exit)
+                } else {
+                    a.enter
+                };
+                let exit = if b0 == a1 && !first(a1, b0) {
+                    cut(b.enter)
+                } else {
+                    a.exit
+                };
+                push(enter, exit);
+            } else {
+                // `b` overlaps `a`'s inside: what is left before and after
+                // it (no end of `a` can share `b0` or `b1` here).
+                if a0 < b0 {
+                    push(a.enter, cut(b.enter));
+                }
+                if b1 < a1 {
+                    push(cut(b.exit), a.exit);
+                }
+            }
+        }
+    }
+}
+
+/// Ends up to which `combine` sweeps on the stack.
+const SMALL_ENDS: usize = 8;
+/// Children up to which `combine` sweeps on the stack.
+const SMALL_CHILDREN: usize = 4;
+
+/// The two ends of child `i`'s span `s`, as `combine`'s sweep sees them:
+/// a subtracted child's ends are cut surfaces (`flip` toggled).
+#[inline(always)]
+fn ends_of(op: Op, i: usize, s: &Span) -> [Event; 2] {
+    let flip = op == Op::Difference && i > 0;
+    let (mut enter, mut exit) = (s.enter, s.exit);
+    enter.flip ^= flip;
+    exit.flip ^= flip;
+    [
+        Event {
+            t: enter.t,
+            child: i as u32,
+            delta: 1,
+            boundary: enter,
+        },
+        Event {
+            t: exit.t,
+            child: i as u32,
+            delta: -1,
+            boundary: exit,
+        },
+    ]
+}
+
+/// `combine`'s sweep over the children's ends, sorted by `t` (stably, so
+/// that among equal `t` they keep the order child, then span), with
+/// `depth` zeroed, one per child.
+#[inline(always)]
+fn sweep(op: Op, events: &[Event], depth: &mut [i32], out: &mut SpanList) {
+    let n = depth.len();
     // Number of children (or subtracted children) we are currently inside.
     let mut inside_count = 0usize;
     let member = |depth: &[i32], inside_count: usize| -> bool {
@@ -192,5 +369,111 @@ pub fn combine(op: Op, children: &[SpanList], out: &mut SpanList, scratch: &mut 
             }
         }
         i = j;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// Ends drawn from few values, signed zeros among them, so that ties
+    /// of every kind are common.
+    const TS: [f64; 6] = [-1.0, -0.0, 0.0, 1.0, 2.0, 3.0];
+
+    fn boundary(t: f64, prim: u32, flip: bool) -> Boundary {
+        Boundary {
+            t,
+            prim: PrimId(prim),
+            part: prim as u8,
+            flip,
+        }
+    }
+
+    fn span_strategy(prim: u32) -> impl Strategy<Value = Span> {
+        (0..TS.len(), 0..TS.len(), any::<bool>(), any::<bool>())
+            .prop_filter("enter before exit", |(i, j, ..)| TS[*i] < TS[*j])
+            .prop_map(move |(i, j, f0, f1)| Span {
+                enter: boundary(TS[i], prim, f0),
+                exit: boundary(TS[j], prim + 1, f1),
+            })
+    }
+
+    fn op_strategy() -> impl Strategy<Value = Op> {
+        prop_oneof![
+            Just(Op::Union),
+            Just(Op::Assembly),
+            Just(Op::Intersection),
+            Just(Op::Difference),
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(4000))]
+
+        /// The worked-out sweep of two single spans is the sweep's, end
+        /// for end (which boundary, which flip), signed zeros included.
+        #[test]
+        fn two_single_spans_combine_as_the_sweep_does(
+            op in op_strategy(),
+            a in span_strategy(0),
+            b in span_strategy(10),
+        ) {
+            let children = [
+                SpanList { spans: vec![a], sheets: Vec::new() },
+                SpanList { spans: vec![b], sheets: Vec::new() },
+            ];
+            let mut fast = SpanList::default();
+            combine(op, &children, &mut fast, &mut CombineScratch::default());
+            let mut swept = SpanList::default();
+            combine_by_sweep(op, &children, &mut swept, &mut CombineScratch::default());
+            prop_assert_eq!(&fast.spans, &swept.spans);
+            // Bit for bit, as `==` takes −0 for +0.
+            let bits = |l: &SpanList| -> Vec<(u64, u64)> {
+                l.spans.iter().map(|s| (s.enter.t.to_bits(), s.exit.t.to_bits())).collect()
+            };
+            prop_assert_eq!(bits(&fast), bits(&swept));
+        }
+
+        /// The sweep on the stack (few ends) is the sweep on the scratch
+        /// vectors (many), for children of up to three spans.
+        #[test]
+        fn small_sweeps_on_the_stack_are_the_sweep(
+            op in op_strategy(),
+            lists in proptest::collection::vec(proptest::collection::vec(span_strategy(0), 0..3), 1..5),
+        ) {
+            // Each child's spans sorted and disjoint, as span lists are.
+            let children: Vec<SpanList> = lists
+                .into_iter()
+                .enumerate()
+                .map(|(i, spans)| {
+                    let mut kept: Vec<Span> = Vec::new();
+                    let mut spans = spans;
+                    spans.sort_by(|x, y| x.enter.t.total_cmp(&y.enter.t));
+                    for mut s in spans {
+                        s.enter.prim = PrimId(i as u32);
+                        s.exit.prim = PrimId(i as u32);
+                        if kept.last().is_none_or(|k| k.exit.t < s.enter.t) {
+                            kept.push(s);
+                        }
+                    }
+                    SpanList { spans: kept, sheets: Vec::new() }
+                })
+                .collect();
+            let mut small = SpanList::default();
+            combine_by_sweep(op, &children, &mut small, &mut CombineScratch::default());
+            // The same sweep forced onto the vectors.
+            let mut events = Vec::new();
+            for (i, c) in children.iter().enumerate() {
+                for s in &c.spans {
+                    events.extend(ends_of(op, i, s));
+                }
+            }
+            events.sort_by(|x, y| x.t.total_cmp(&y.t));
+            let mut depth = vec![0; children.len()];
+            let mut swept = SpanList::default();
+            sweep(op, &events, &mut depth, &mut swept);
+            prop_assert_eq!(&small.spans, &swept.spans);
+        }
     }
 }
