@@ -721,7 +721,27 @@ pub struct ShadowFacts {
     pub glass: Option<Vec<Aabb>>,
     /// Whether walks keep the shadow cache (`CellOptions::no_shadow_cache`).
     pub cache: bool,
+    /// Small exposed solids (an operator other than a union, every
+    /// operator above it a union or an assembly, with at most
+    /// `MAX_SOLID_LEAVES` leaves), copied from the scene's tree with the
+    /// structure's primitive numbers: inside one is inside the scene's
+    /// solid wherever it is, as inside an exposed primitive is, so the
+    /// shadow cache may keep one that stopped a shadow ray (the north wall
+    /// less its window, a lamp's hollow shade). Every share that holds a
+    /// primitive of one holds all of its primitives.
+    pub solids: CsgTree,
+    /// Per primitive, the root in `solids` of the solid it is a leaf of,
+    /// or `NO_SOLID`; empty where the scene has no such solid (in every
+    /// share of its structure too).
+    pub solid_of: Vec<u32>,
 }
+
+/// The most leaves of a solid the shadow cache may keep
+/// (`ShadowFacts::solids`): testing it costs a test a leaf.
+pub const MAX_SOLID_LEAVES: usize = 8;
+
+/// `ShadowFacts::solid_of` of a primitive in no cached solid.
+pub const NO_SOLID: u32 = u32::MAX;
 
 /// Transmitting primitives up to which shadow rays are checked against
 /// their boxes (`ShadowFacts::glass`): beyond, every shadow ray walks to
@@ -941,13 +961,37 @@ impl ShadowFacts {
             .iter()
             .map(|l| free_radius(scene, minimal, l.position))
             .collect();
+        let (solids, solid_of) = exposed_solids(tree, &open, scene.primitives.len());
         ShadowFacts {
             exposed,
             clear_lights,
             free_radius,
             glass: (glass.len() <= MAX_GLASS).then_some(glass),
             cache,
+            solids,
+            solid_of,
         }
+    }
+
+    /// The root in `solids` of the solid primitive `p` is a leaf of.
+    pub fn solid_of(&self, p: u32) -> Option<u32> {
+        self.solid_of
+            .get(p as usize)
+            .copied()
+            .filter(|&r| r != NO_SOLID)
+    }
+
+    /// The primitives of the solid rooted at `root` in `solids`.
+    pub fn solid_primitives(&self, root: u32) -> Vec<u32> {
+        let mut out = Vec::new();
+        let mut stack = vec![NodeId(root)];
+        while let Some(n) = stack.pop() {
+            match self.solids.nodes[n.index()] {
+                CsgNode::Leaf(p) => out.push(p.0),
+                CsgNode::Op { .. } => stack.extend_from_slice(self.solids.children_of(n)),
+            }
+        }
+        out
     }
 
     /// Whether primitive `p` of the structure's scene is exposed.
@@ -958,10 +1002,13 @@ impl ShadowFacts {
     }
 
     /// The facts for a share whose primitives are the scene's `kept`
-    /// (global numbers, in their local order).
-    pub fn restricted(&self, kept: impl Iterator<Item = u32>) -> ShadowFacts {
+    /// (global numbers, ascending: their local order). The solids kept
+    /// are those whose primitives are all in `kept` (the share holds every
+    /// primitive of a solid it holds one of, `CellStructure::restrict_with`),
+    /// renumbered.
+    pub fn restricted(&self, kept: &[u32]) -> ShadowFacts {
         let mut exposed = Vec::new();
-        for (k, p) in kept.enumerate() {
+        for (k, &p) in kept.iter().enumerate() {
             if k % 64 == 0 {
                 exposed.push(0);
             }
@@ -969,14 +1016,49 @@ impl ShadowFacts {
                 exposed[k / 64] |= 1 << (k % 64);
             }
         }
+        let (mut solids, mut solid_of) = (CsgTree::new(), Vec::new());
+        if !self.solid_of.is_empty() {
+            let local = |g: u32| kept.binary_search(&g).ok().map(|k| k as u32);
+            // Each solid once, in the order of its first primitive.
+            let mut copied: HashMap<u32, u32> = HashMap::new();
+            solid_of = vec![NO_SOLID; kept.len()];
+            for (k, &g) in kept.iter().enumerate() {
+                let Some(root) = self.solid_of(g) else {
+                    continue;
+                };
+                if let Some(&r) = copied.get(&root) {
+                    solid_of[k] = r;
+                    continue;
+                }
+                let held = self
+                    .solid_primitives(root)
+                    .into_iter()
+                    .all(|q| local(q).is_some());
+                let r = if held {
+                    copy_subtree(&self.solids, root, &mut solids, &|p| {
+                        PrimId(local(p.0).expect("every primitive of the solid is held"))
+                    })
+                } else {
+                    NO_SOLID
+                };
+                copied.insert(root, r);
+                solid_of[k] = r;
+            }
+        }
         ShadowFacts {
             exposed,
+            solids,
+            solid_of,
             ..self.clone()
         }
     }
 
     fn bytes(&self) -> usize {
+        let t = &self.solids;
         self.exposed.len() * 8
+            + t.nodes.len() * (std::mem::size_of::<CsgNode>() + 2 * std::mem::size_of::<Aabb>())
+            + t.children.len() * std::mem::size_of::<NodeId>()
+            + self.solid_of.len() * std::mem::size_of::<u32>()
             + self.clear_lights.len()
             + self.free_radius.len() * std::mem::size_of::<f64>()
             + self
@@ -984,6 +1066,89 @@ impl ShadowFacts {
                 .as_ref()
                 .map_or(0, |g| g.len() * std::mem::size_of::<Aabb>())
     }
+}
+
+/// The small exposed solids of `tree` (`ShadowFacts::solids`), `open`
+/// marking the nodes every operator above which is a union or an
+/// assembly, and per primitive of the `prims` the root of its solid.
+/// Both empty where there is none.
+fn exposed_solids(tree: &CsgTree, open: &[bool], prims: usize) -> (CsgTree, Vec<u32>) {
+    // Leaves per node, children before parents.
+    let mut leaves = vec![0usize; tree.nodes.len()];
+    for i in 0..tree.nodes.len() {
+        leaves[i] = match tree.nodes[i] {
+            CsgNode::Leaf(_) => 1,
+            CsgNode::Op { .. } => tree
+                .children_of(NodeId(i as u32))
+                .iter()
+                .map(|c| leaves[c.index()])
+                .sum(),
+        };
+    }
+    let mut solids = CsgTree::new();
+    let mut solid_of = Vec::new();
+    for i in 0..tree.nodes.len() {
+        let CsgNode::Op { op, .. } = tree.nodes[i] else {
+            continue;
+        };
+        if !open[i] || matches!(op, Op::Union | Op::Assembly) || leaves[i] > MAX_SOLID_LEAVES {
+            continue;
+        }
+        if tree.bounds.get(i).is_none_or(|b| b.is_empty()) {
+            // Nothing inside (Algorithm 1): nothing to stop a ray.
+            continue;
+        }
+        let root = copy_subtree(tree, i as u32, &mut solids, &|p| p);
+        if solid_of.is_empty() {
+            solid_of = vec![NO_SOLID; prims];
+        }
+        let mut stack = vec![NodeId(i as u32)];
+        while let Some(n) = stack.pop() {
+            match tree.nodes[n.index()] {
+                CsgNode::Leaf(p) => solid_of[p.index()] = root,
+                CsgNode::Op { .. } => stack.extend_from_slice(tree.children_of(n)),
+            }
+        }
+    }
+    (solids, solid_of)
+}
+
+/// Copies the subtree of `from` rooted at `root` to the end of `to` (its
+/// nodes in their arena order, so children stay before parents), with
+/// its bounds and its leaves' primitives renamed by `prim`; returns its
+/// new root.
+fn copy_subtree(
+    from: &CsgTree,
+    root: u32,
+    to: &mut CsgTree,
+    prim: &dyn Fn(PrimId) -> PrimId,
+) -> u32 {
+    let mut nodes = Vec::new();
+    let mut stack = vec![NodeId(root)];
+    while let Some(n) = stack.pop() {
+        nodes.push(n.0);
+        stack.extend_from_slice(from.children_of(n));
+    }
+    nodes.sort_unstable();
+    let mut new_id = HashMap::new();
+    for &i in &nodes {
+        let n = NodeId(i);
+        let id = match from.nodes[n.index()] {
+            CsgNode::Leaf(p) => to.leaf(prim(p)),
+            CsgNode::Op { op, .. } => {
+                let children = from
+                    .children_of(n)
+                    .iter()
+                    .map(|c| NodeId(new_id[&c.0]))
+                    .collect();
+                to.op(op, children)
+            }
+        };
+        new_id.insert(i, id.0);
+        to.bounds.push(from.bounds[n.index()]);
+        to.cull_bounds.push(from.cull_bounds[n.index()]);
+    }
+    new_id[&root]
 }
 
 /// A leaf of a cell's subtree, for the traversal's first look at a cell

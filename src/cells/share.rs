@@ -80,6 +80,20 @@ impl CellStructure {
                 used_origins[self.origin[i] as usize] = true;
             }
         }
+        // With each, every primitive of a small solid it is in, which the
+        // shadow cache may test whole (`ShadowFacts::solids`).
+        if !self.shadows.solid_of.is_empty() {
+            let held: Vec<u32> = (0..used_prims.len() as u32)
+                .filter(|&g| used_prims[g as usize])
+                .collect();
+            for g in held {
+                if let Some(root) = self.shadows.solid_of(g) {
+                    for q in self.shadows.solid_primitives(root) {
+                        used_prims[q as usize] = true;
+                    }
+                }
+            }
+        }
         let (prims, origins) = (Dense::new(&used_prims), Dense::new(&used_origins));
         // Copy in arena order: children before parents stays true.
         let mut new_id = vec![u32::MAX; old.nodes.len()];
@@ -162,7 +176,7 @@ impl CellStructure {
             leaf_span,
             subtree_leaves,
             scene_box: self.scene_box,
-            shadows: self.shadows.restricted(prims.kept.iter().copied()),
+            shadows: self.shadows.restricted(&prims.kept),
             clip: self.clip.as_ref().map(|c| {
                 Box::new(WideClip {
                     id: prims.get(c.id).unwrap_or(NOT_HELD),
@@ -264,6 +278,8 @@ pub struct ShareGrowth<'a> {
     /// Per region, per subtree root, the cells not held with that root:
     /// the share keeps one hull for each root that has any.
     unheld: [Vec<u32>; 2],
+    /// The small solids held (their roots in `ShadowFacts::solids`).
+    solids_held: Vec<u32>,
     tally: Tally,
 }
 
@@ -280,6 +296,12 @@ pub struct Tally {
     pub origins: usize,
     /// Hulls of cells held elsewhere.
     pub hulls: usize,
+    /// Nodes and operators' children of the small solids held
+    /// (`ShadowFacts::solids`), and whether the structure has any (then
+    /// every share keeps a root per primitive).
+    pub solid_nodes: usize,
+    pub solid_children: usize,
+    pub solids: bool,
 }
 
 impl Tally {
@@ -295,6 +317,10 @@ impl Tally {
             // `primitive_ids`, and the shadow facts' bit per primitive.
             + self.prims * 4
             + self.prims.div_ceil(64) * 8
+            // The shadow facts' small solids, and their root per primitive.
+            + self.solid_nodes * (size_of::<CsgNode>() + 2 * size_of::<Aabb>())
+            + self.solid_children * size_of::<NodeId>()
+            + if self.solids { self.prims * 4 } else { 0 }
     }
 }
 
@@ -319,11 +345,13 @@ impl<'a> ShareGrowth<'a> {
             held: cs.regions.each_ref().map(|r| vec![false; r.supers.len()]),
             kept: vec![false; nodes],
             rooted: vec![false; nodes],
-            prims: vec![false; max_prim(cs)],
+            prims: vec![false; max_prim(cs).max(cs.shadows.solid_of.len())],
             origins: vec![false; max_origin(cs)],
             unheld,
+            solids_held: Vec::new(),
             tally: Tally {
                 hulls,
+                solids: !cs.shadows.solid_of.is_empty(),
                 ..Tally::default()
             },
         };
@@ -369,17 +397,43 @@ impl<'a> ShareGrowth<'a> {
                 let children = tree.children_of(n);
                 self.tally.children += children.len();
                 stack.extend_from_slice(children);
-                if let CsgNode::Leaf(p) = tree.nodes[n.index()]
-                    && !std::mem::replace(&mut self.prims[p.index()], true)
-                {
-                    self.tally.prims += 1;
-                    new_prim(p.0);
+                if let CsgNode::Leaf(p) = tree.nodes[n.index()] {
+                    self.reference(p.0, new_prim);
                 }
                 let o = self.cs.origin[n.index()] as usize;
                 if !std::mem::replace(&mut self.origins[o], true) {
                     self.tally.origins += 1;
                 }
             }
+        }
+    }
+
+    /// Counts primitive `p` (global number) as referenced, with the
+    /// small solid it is in, if any, and that solid's other primitives
+    /// (`CellStructure::restrict_with` keeps them all).
+    fn reference(&mut self, p: u32, new_prim: &mut dyn FnMut(u32)) {
+        if std::mem::replace(&mut self.prims[p as usize], true) {
+            return;
+        }
+        self.tally.prims += 1;
+        new_prim(p);
+        let facts = &self.cs.shadows;
+        let Some(root) = facts.solid_of(p) else {
+            return;
+        };
+        if self.solids_held.contains(&root) {
+            return;
+        }
+        self.solids_held.push(root);
+        let mut stack = vec![NodeId(root)];
+        while let Some(n) = stack.pop() {
+            self.tally.solid_nodes += 1;
+            let children = facts.solids.children_of(n);
+            self.tally.solid_children += children.len();
+            stack.extend_from_slice(children);
+        }
+        for q in facts.solid_primitives(root) {
+            self.reference(q, new_prim);
         }
     }
 

@@ -648,10 +648,11 @@ pub struct CellTracer<'a> {
     /// The light of the current shadow walk, when `occluding`.
     light: usize,
     /// Per light (at most `SHADOW_CACHE_LIGHTS`; empty beyond), the exposed
-    /// solid primitive (`ShadowFacts::exposed`) that last stopped a shadow
-    /// ray toward it: Haines and Greenberg's shadow cache, as neighbouring
-    /// shadow rays are mostly stopped by the same object.
-    blockers: Vec<Option<u32>>,
+    /// solid primitive (`ShadowFacts::exposed`), or the small exposed
+    /// solid (`ShadowFacts::solids`), that last stopped a shadow ray toward
+    /// it: Haines and Greenberg's shadow cache, as neighbouring shadow rays
+    /// are mostly stopped by the same object.
+    blockers: Vec<Option<Blocker>>,
     /// The node whose cache the current shadow walk asks and fills: 0, or,
     /// when recording for a mapping, the node the ray is on (as each node
     /// of the machine keeps its own cache), with `blockers` holding one
@@ -671,6 +672,16 @@ pub struct CellTracer<'a> {
 
 /// Entries of `CellTracer::local_cache`.
 const LOCAL_CACHE: usize = 64;
+
+/// What stopped the last shadow ray toward a light, for the shadow cache
+/// (`CellTracer::blockers`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Blocker {
+    /// An exposed solid primitive (`ShadowFacts::is_exposed`).
+    Primitive(u32),
+    /// A small exposed solid: its root in `ShadowFacts::solids`.
+    Solid(u32),
+}
 
 /// Lights up to which `CellTracer` keeps a shadow cache: finding a shadow
 /// ray's light is a scan of the lights.
@@ -1029,7 +1040,7 @@ impl<'a> CellTracer<'a> {
     pub fn bytes_for(cs: &CellStructure, scene: &Scene) -> usize {
         scene.primitives.len() * Self::BYTES_PER_PRIMITIVE
             + cs.origin_count * Self::BYTES_PER_ORIGIN
-            + scene.lights.len() * std::mem::size_of::<Option<u32>>()
+            + scene.lights.len() * std::mem::size_of::<Option<Blocker>>()
             + std::mem::size_of::<[(u32, Option<PrimId>); LOCAL_CACHE]>()
     }
 
@@ -1211,10 +1222,21 @@ impl CellTracer<'_> {
         if let Walk::Hit(h) = &walk
             && !self.blockers.is_empty()
         {
-            let keep = self.cs.shadows.is_exposed(h.prim.0)
-                && self.scene.primitives[h.prim.index()].is_solid();
+            let facts = &self.cs.shadows;
+            let keep =
+                if facts.is_exposed(h.prim.0) && self.scene.primitives[h.prim.index()].is_solid() {
+                    Some(Blocker::Primitive(h.prim.0))
+                } else if self.profile.is_none() {
+                    facts.solid_of(h.prim.0).map(Blocker::Solid)
+                } else {
+                    // The pre-pass models the primitives' cache alone:
+                    // the mapping balances on it, and with the solids'
+                    // too it balanced worse (`docs/performance-log.md`,
+                    // session 41).
+                    None
+                };
             let lights = self.scene.lights.len();
-            self.blockers[self.cache_node * lights + light] = keep.then_some(h.prim.0);
+            self.blockers[self.cache_node * lights + light] = keep;
         }
         walk
     }
@@ -1270,17 +1292,53 @@ impl CellTracer<'_> {
     }
 
     /// The shadow cache's answer for a shadow walk's ray: a hit if it
-    /// passes through the primitive that stopped the last shadow ray
-    /// toward its light (`walk_shadow`).
+    /// passes through the primitive or small solid that stopped the last
+    /// shadow ray toward its light (`walk_shadow`). A ray that leaves it
+    /// is not asked (`RayJob::leaving`: the walk leaves that primitive
+    /// out).
     fn cached_blocker(&mut self, ray: &Ray, t_min: f64, t_max: f64) -> Option<Hit> {
         let lights = self.scene.lights.len();
-        let p = (*self.blockers.get(self.cache_node * lights + self.light)?)?;
-        if self.leaving_here == Some(PrimId(p)) {
-            return None;
+        match (*self.blockers.get(self.cache_node * lights + self.light)?)? {
+            Blocker::Primitive(p) => {
+                if self.leaving_here == Some(PrimId(p)) {
+                    return None;
+                }
+                self.counters.intersection_tests += 1;
+                let hits = self.scene.primitives[p as usize].intersect(ray);
+                passes_through(&hits, PrimId(p), t_min, t_max)
+            }
+            Blocker::Solid(root) => {
+                let facts = &self.cs.shadows;
+                if self.leaving_here.and_then(|p| facts.solid_of(p.0)) == Some(root) {
+                    return None;
+                }
+                // Its span list by Roth's evaluation of its few leaves.
+                let prims = &self.scene.primitives;
+                let mut tests = 0;
+                let spans = self.eval.evaluate(
+                    &facts.solids,
+                    NodeId(root),
+                    ray,
+                    true,
+                    &mut self.eval_counts,
+                    |p| {
+                        tests += 1;
+                        prims[p.index()].intersect(ray)
+                    },
+                );
+                self.counters.intersection_tests += tests;
+                let pad = (t_min.abs() + t_max.abs()) * 1e-9;
+                spans.spans.iter().find_map(|s| {
+                    let (a, b) = (max(s.enter.t, t_min), min(s.exit.t, t_max));
+                    (b - a > pad).then_some(Hit {
+                        t: a,
+                        prim: s.enter.prim,
+                        part: s.enter.part,
+                        flip: s.enter.flip,
+                    })
+                })
+            }
         }
-        self.counters.intersection_tests += 1;
-        let hits = self.scene.primitives[p as usize].intersect(ray);
-        passes_through(&hits, PrimId(p), t_min, t_max)
     }
 
     /// The walk of section 7 for the boundaries with `t_min < t < t_max`,
@@ -1614,6 +1672,7 @@ impl CellTracer<'_> {
         if let Some((owners, _)) = &self.owners {
             self.cache_node = owners[region as usize][s as usize] as usize;
         }
+        // (Only primitives: recording keeps no solid, `walk_shadow`.)
         let blocker = self.cached_blocker(ray, t_min, t_max);
         self.book_test(region, s);
         blocker

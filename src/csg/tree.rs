@@ -39,7 +39,7 @@ pub enum CsgNode {
 
 /// A CSG tree. Nodes are stored children-before-parents, so a forward pass
 /// is a post-order traversal (no recursion: trees may be 10,000 levels deep).
-#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct CsgTree {
     pub nodes: Vec<CsgNode>,
     /// Operators' children, referenced by `CsgNode::Op::first/len`.

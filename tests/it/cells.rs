@@ -932,6 +932,69 @@ fn shadow_walks_stop_short_of_the_light_only_where_nothing_is() {
     assert!(darker > 300, "{darker} pixels in the slab's shadow");
 }
 
+/// The shadow cache keeps a small solid whose primitives are not exposed
+/// (`ShadowFacts::solids`): a roof less its skylight, between a floor and
+/// the light, is one solid of two boxes. Cells equal Roth with and
+/// without the cache, the cache spares the walks of the floor's shadow
+/// rays under the roof (the roof is their only blocker, and no primitive
+/// of it is exposed, so only the solid can be cached), and a share that
+/// holds one of the solid's primitives holds both, as one solid.
+#[test]
+fn shadow_rays_stopped_by_a_small_difference_are_answered_by_the_cache() {
+    let scene = load(
+        "(camera: (eye: (0, -7, 5), look_at: (0, 0, 0), fov_y: 50, width: 64, height: 48),
+          lights: [(position: (0.3, 0.2, 3))],
+          objects: [
+            Box(min: (-4, -4, -0.1), max: (4, 4, 0)),
+            Difference(children: [
+                Box(min: (-2, -2, 1.9), max: (2, 2, 2)),
+                Box(min: (-0.5, -0.5, 1.8), max: (0.5, 0.5, 2.1)),
+            ]),
+          ])",
+    );
+    let cs = CellStructure::build(&scene, 64, 48, CellOptions::default()).unwrap();
+    let facts = &cs.shadows;
+    assert_eq!(facts.solid_of(0), None, "the floor is exposed itself");
+    let roof = facts.solid_of(1).expect("the roof is in a solid");
+    assert_eq!(
+        facts.solid_of(2),
+        Some(roof),
+        "the skylight is in the roof's"
+    );
+    let (film, _) = assert_renders_equal(&scene, 64, 48);
+    let uncached = CellOptions {
+        no_shadow_cache: true,
+        ..Default::default()
+    };
+    let opts = options(64, 48);
+    let (walked, plain, _) = render_cells(&scene, &opts, uncached, &|_| {});
+    assert!(
+        walked.sums() == film.sums(),
+        "cells without the cache differ"
+    );
+    let (_, cached, _) = render_cells(&scene, &opts, CellOptions::default(), &|_| {});
+    let (a, b) = (cached.counters.cells_visited, plain.counters.cells_visited);
+    assert!(
+        a * 10 < b * 9,
+        "cells entered: {a} with the cache, {b} without"
+    );
+    for region in Region::BOTH {
+        for s in 0..cs.region(region).supers.len() as u32 {
+            let (share, _) = cs.restrict(&scene, &|r, t| r == region && t == s);
+            let ids = &share.primitive_ids;
+            let local = |g: u32| ids.iter().position(|&x| x == g).map(|k| k as u32);
+            match (local(1), local(2)) {
+                (None, None) => {}
+                (Some(a), Some(b)) => {
+                    let root = share.shadows.solid_of(a);
+                    assert!(root.is_some() && root == share.shadows.solid_of(b));
+                }
+                held => panic!("super cell {s}: half a solid held, {held:?}"),
+            }
+        }
+    }
+}
+
 /// Random CSG scenes on a wide ground slab, so that walks keep to the box
 /// of everything but the ground when they do not cross it (`WideClip`):
 /// cells and Roth still agree on every pixel, with mirrors, glass, lights
