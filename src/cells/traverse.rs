@@ -1327,15 +1327,30 @@ impl CellTracer<'_> {
                     },
                 );
                 self.counters.intersection_tests += tests;
+                // Inside it over more than rounding, and reported at an end
+                // of that stretch on the ray's range: a boundary there lies
+                // in its primitive's minimal box, which no transmitting
+                // primitive's meets on a short walk (`takes_short`), so the
+                // shader sees an opaque stop. (An end behind the ray's start
+                // may be a glass cut face the walk never meets; a solid that
+                // holds the whole range is left to the walk.)
                 let pad = (t_min.abs() + t_max.abs()) * 1e-9;
-                spans.spans.iter().find_map(|s| {
+                let s = spans.spans.iter().find(|s| {
                     let (a, b) = (max(s.enter.t, t_min), min(s.exit.t, t_max));
-                    (b - a > pad).then_some(Hit {
-                        t: a,
-                        prim: s.enter.prim,
-                        part: s.enter.part,
-                        flip: s.enter.flip,
-                    })
+                    b - a > pad
+                })?;
+                let end = if s.enter.t > t_min {
+                    s.enter
+                } else if s.exit.t < t_max {
+                    s.exit
+                } else {
+                    return None;
+                };
+                Some(Hit {
+                    t: end.t,
+                    prim: end.prim,
+                    part: end.part,
+                    flip: end.flip,
                 })
             }
         }
