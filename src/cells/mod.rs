@@ -983,15 +983,8 @@ impl ShadowFacts {
 
     /// The primitives of the solid rooted at `root` in `solids`.
     pub fn solid_primitives(&self, root: u32) -> Vec<u32> {
-        let mut out = Vec::new();
-        let mut stack = vec![NodeId(root)];
-        while let Some(n) = stack.pop() {
-            match self.solids.nodes[n.index()] {
-                CsgNode::Leaf(p) => out.push(p.0),
-                CsgNode::Op { .. } => stack.extend_from_slice(self.solids.children_of(n)),
-            }
-        }
-        out
+        let prims = self.solids.prims_from(NodeId(root));
+        prims.into_iter().map(|p| p.0).collect()
     }
 
     /// Whether primitive `p` of the structure's scene is exposed.
@@ -1102,12 +1095,8 @@ fn exposed_solids(tree: &CsgTree, open: &[bool], prims: usize) -> (CsgTree, Vec<
         if solid_of.is_empty() {
             solid_of = vec![NO_SOLID; prims];
         }
-        let mut stack = vec![NodeId(i as u32)];
-        while let Some(n) = stack.pop() {
-            match tree.nodes[n.index()] {
-                CsgNode::Leaf(p) => solid_of[p.index()] = root,
-                CsgNode::Op { .. } => stack.extend_from_slice(tree.children_of(n)),
-            }
+        for p in tree.prims_from(NodeId(i as u32)) {
+            solid_of[p.index()] = root;
         }
     }
     (solids, solid_of)

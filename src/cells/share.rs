@@ -425,13 +425,10 @@ impl<'a> ShareGrowth<'a> {
             return;
         }
         self.solids_held.push(root);
-        let mut stack = vec![NodeId(root)];
-        while let Some(n) = stack.pop() {
-            self.tally.solid_nodes += 1;
-            let children = facts.solids.children_of(n);
-            self.tally.solid_children += children.len();
-            stack.extend_from_slice(children);
-        }
+        // A tree: every node but its root is one operator's child.
+        let nodes = facts.solids.size_from(NodeId(root));
+        self.tally.solid_nodes += nodes;
+        self.tally.solid_children += nodes - 1;
         for q in facts.solid_primitives(root) {
             self.reference(q, new_prim);
         }

@@ -910,14 +910,20 @@ fn passes_through(hits: &PrimHits, p: PrimId, t_lo: f64, t_end: f64) -> Option<H
     let PrimHits::Solid { enter, exit } = hits else {
         return None;
     };
-    let (a, b) = (max(enter.t, t_lo), min(exit.t, t_end));
-    let pad = (t_lo.abs() + t_end.abs()) * 1e-9;
-    (b - a > pad).then_some(Hit {
-        t: a,
+    inside_over(enter.t, exit.t, t_lo, t_end).then_some(Hit {
+        t: max(enter.t, t_lo),
         prim: p,
         part: enter.part,
         flip: false,
     })
+}
+
+/// Whether a ray inside a solid over `[enter, exit]` is inside it over
+/// more than rounding of `[t_lo, t_end]` (`passes_through`).
+#[inline]
+fn inside_over(enter: f64, exit: f64, t_lo: f64, t_end: f64) -> bool {
+    let (a, b) = (max(enter, t_lo), min(exit, t_end));
+    b - a > (t_lo.abs() + t_end.abs()) * 1e-9
 }
 
 /// Whether one primitive has a crossing with `t_lo <= t <= t_end` (for a
@@ -1334,11 +1340,10 @@ impl CellTracer<'_> {
                 // shader sees an opaque stop. (An end behind the ray's start
                 // may be a glass cut face the walk never meets; a solid that
                 // holds the whole range is left to the walk.)
-                let pad = (t_min.abs() + t_max.abs()) * 1e-9;
-                let s = spans.spans.iter().find(|s| {
-                    let (a, b) = (max(s.enter.t, t_min), min(s.exit.t, t_max));
-                    b - a > pad
-                })?;
+                let s = spans
+                    .spans
+                    .iter()
+                    .find(|s| inside_over(s.enter.t, s.exit.t, t_min, t_max))?;
                 let end = if s.enter.t > t_min {
                     s.enter
                 } else if s.exit.t < t_max {

@@ -74,21 +74,6 @@ pub struct Event {
     boundary: Boundary,
 }
 
-impl Event {
-    /// A placeholder for `combine`'s stack of ends.
-    const NONE: Event = Event {
-        t: 0.0,
-        child: 0,
-        delta: 0,
-        boundary: Boundary {
-            t: 0.0,
-            prim: PrimId(0),
-            part: 0,
-            flip: false,
-        },
-    };
-}
-
 /// Scratch space for `combine`, reused across calls so that the inner loop
 /// does not allocate.
 #[derive(Default, Debug)]
@@ -144,38 +129,6 @@ fn combine_by_sweep(
     out: &mut SpanList,
     scratch: &mut CombineScratch,
 ) {
-    let ends = 2 * children.iter().map(|c| c.spans.len()).sum::<usize>();
-    if ends <= SMALL_ENDS && children.len() <= SMALL_CHILDREN {
-        // Most other combinations have a few spans (three operands of a
-        // cell's subtree in the window, a union of a span and two): the
-        // same sweep over ends kept on the stack, without the scratch
-        // vectors' bookkeeping.
-        let mut events = [Event::NONE; SMALL_ENDS];
-        let mut m = 0;
-        for (i, c) in children.iter().enumerate() {
-            for s in &c.spans {
-                for e in ends_of(op, i, s) {
-                    events[m] = e;
-                    m += 1;
-                }
-            }
-        }
-        let events = &mut events[..m];
-        // Insertion sort, stable as `sort_by` is (an end moves only past
-        // greater ones).
-        for k in 1..events.len() {
-            let e = events[k];
-            let mut j = k;
-            while j > 0 && events[j - 1].t.total_cmp(&e.t).is_gt() {
-                events[j] = events[j - 1];
-                j -= 1;
-            }
-            events[j] = e;
-        }
-        let mut depth = [0i32; SMALL_CHILDREN];
-        sweep(op, events, &mut depth[..children.len()], out);
-        return;
-    }
     let events = &mut scratch.events;
     events.clear();
     for (i, c) in children.iter().enumerate() {
@@ -281,11 +234,6 @@ fn two_spans(op: Op, a: &Span, b: &Span, out: &mut SpanList) {
         }
     }
 }
-
-/// Ends up to which `combine` sweeps on the stack.
-const SMALL_ENDS: usize = 8;
-/// Children up to which `combine` sweeps on the stack.
-const SMALL_CHILDREN: usize = 4;
 
 /// The two ends of child `i`'s span `s`, as `combine`'s sweep sees them:
 /// a subtracted child's ends are cut surfaces (`flip` toggled).
@@ -433,47 +381,6 @@ mod tests {
                 l.spans.iter().map(|s| (s.enter.t.to_bits(), s.exit.t.to_bits())).collect()
             };
             prop_assert_eq!(bits(&fast), bits(&swept));
-        }
-
-        /// The sweep on the stack (few ends) is the sweep on the scratch
-        /// vectors (many), for children of up to three spans.
-        #[test]
-        fn small_sweeps_on_the_stack_are_the_sweep(
-            op in op_strategy(),
-            lists in proptest::collection::vec(proptest::collection::vec(span_strategy(0), 0..3), 1..5),
-        ) {
-            // Each child's spans sorted and disjoint, as span lists are.
-            let children: Vec<SpanList> = lists
-                .into_iter()
-                .enumerate()
-                .map(|(i, spans)| {
-                    let mut kept: Vec<Span> = Vec::new();
-                    let mut spans = spans;
-                    spans.sort_by(|x, y| x.enter.t.total_cmp(&y.enter.t));
-                    for mut s in spans {
-                        s.enter.prim = PrimId(i as u32);
-                        s.exit.prim = PrimId(i as u32);
-                        if kept.last().is_none_or(|k| k.exit.t < s.enter.t) {
-                            kept.push(s);
-                        }
-                    }
-                    SpanList { spans: kept, sheets: Vec::new() }
-                })
-                .collect();
-            let mut small = SpanList::default();
-            combine_by_sweep(op, &children, &mut small, &mut CombineScratch::default());
-            // The same sweep forced onto the vectors.
-            let mut events = Vec::new();
-            for (i, c) in children.iter().enumerate() {
-                for s in &c.spans {
-                    events.extend(ends_of(op, i, s));
-                }
-            }
-            events.sort_by(|x, y| x.t.total_cmp(&y.t));
-            let mut depth = vec![0; children.len()];
-            let mut swept = SpanList::default();
-            sweep(op, &events, &mut depth, &mut swept);
-            prop_assert_eq!(&small.spans, &swept.spans);
         }
     }
 }

@@ -93,6 +93,19 @@ impl CsgTree {
         n
     }
 
+    /// The primitives of the leaves reachable from `root`.
+    pub fn prims_from(&self, root: NodeId) -> Vec<PrimId> {
+        let mut stack = vec![root];
+        let mut out = Vec::new();
+        while let Some(x) = stack.pop() {
+            match self.nodes[x.index()] {
+                CsgNode::Leaf(p) => out.push(p),
+                CsgNode::Op { .. } => stack.extend_from_slice(self.children_of(x)),
+            }
+        }
+        out
+    }
+
     /// Adds a leaf with its culling bounds given (for subtree arenas, whose
     /// nodes are never `finish`ed).
     pub fn leaf_with_bounds(&mut self, prim: PrimId, bounds: Aabb) -> NodeId {
