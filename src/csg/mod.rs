@@ -4,6 +4,7 @@
 //! threads, cannot fail.
 
 pub mod eval;
+pub mod exact;
 pub mod shape;
 pub mod span;
 pub mod tree;

@@ -159,7 +159,10 @@ impl Primitive {
     /// the world, whatever the map's scales; `|o − T|` is at most
     /// `|p − T|` and the distance, so `|p − T|` covers it nine times over.
     /// A triangle or polygon lying in a coordinate plane is met as a box's
-    /// face is (`on_coordinate_plane`): size 0 too. A cylinder or cone
+    /// face is (`on_plane`): size 0 too; so is one reaching 2^21 times
+    /// beyond the hit, met on its exact plane, and a sphere as large
+    /// against its hit, met with exact arithmetic (`sphere_hits`). A
+    /// cylinder or cone
     /// combines distances along and from its axis that the hit's distance
     /// from its base and its height bound (`axial_size`), which for a disc
     /// of radius 1e20 are far below its extent. Every other shape
@@ -176,6 +179,14 @@ impl Primitive {
         match (&self.shape, &self.transform) {
             (Shape::Box { .. }, None) => 0.0,
             (shape, None) if shape.in_coordinate_plane() => 0.0,
+            // Met on its exact plane (`on_plane`) or with the exact power
+            // of the ray's origin (`sphere_hits`): as accurate as the
+            // distance travelled.
+            (Shape::Triangle { .. } | Shape::Polygon(_) | Shape::Sphere { .. }, None)
+                if extent() > 2.0 * FAR_REACH * p.abs().max_element() =>
+            {
+                0.0
+            }
             (Shape::Box { .. }, Some(m)) => (p - m.translation).abs().max_element(),
             (&Shape::Cylinder { base, top, .. }, m) => {
                 axial_size(p, m.as_deref(), base, top, 0.0).min(extent())
@@ -761,7 +772,7 @@ fn intersect_shape(shape: &Shape, ray: &Ray) -> PrimHits {
         }
         Shape::Triangle { a, b, c } => match Shear::new(ray).and_then(|s| s.triangle(*a, *b, *c)) {
             Some(t) => {
-                let t = on_coordinate_plane(ray, &[*a, *b, *c], t);
+                let t = on_plane(ray, [*a, *b, *c], &[*a, *b, *c], t);
                 sheet(Some(crossing(t, 0)), None)
             }
             None => PrimHits::Miss,
@@ -772,7 +783,7 @@ fn intersect_shape(shape: &Shape, ray: &Ray) -> PrimHits {
 
 impl Shape {
     /// Whether this is a triangle or polygon lying in a coordinate plane,
-    /// whose hits are met as a box's face is (`on_coordinate_plane`).
+    /// whose hits are met as a box's face is (`on_plane`).
     fn in_coordinate_plane(&self) -> bool {
         match self {
             Shape::Triangle { a, b, c } => coordinate_plane(&[*a, *b, *c]).is_some(),
@@ -792,9 +803,18 @@ fn coordinate_plane(vertices: &[Vec3]) -> Option<(usize, f64)> {
         .map(|k| (k, first[k]))
 }
 
+/// How far a planar primitive or a sphere must reach beyond its hit (its
+/// extent against the hit point's largest coordinate) for the hit to be
+/// taken from exact arithmetic (`on_plane`, `sphere_hits`);
+/// `Primitive::rounding_size` asks for twice this, so that it counts a hit
+/// as exact only where the intersection surely made it so (the f64 point
+/// it decided by is off by far less than `|p|` there).
+const FAR_REACH: f64 = (1u64 << 20) as f64;
+
 /// The `t` of a planar primitive's hit, which the triangle test found at
-/// `t_fan`, taken as a box's face is met, `(c − o)/d` on the axis of the
-/// coordinate plane it lies in, if it lies in one.
+/// `t_fan` on triangle `tri` of a primitive with `vertices`: the plane's
+/// own `t` where the primitive lies in a coordinate plane or reaches far
+/// beyond the hit, else `t_fan`.
 ///
 /// Why: the triangle test weighs the vertices' depths along the ray by
 /// barycentric-like edge functions, which cancel to the hit's distance
@@ -802,26 +822,79 @@ fn coordinate_plane(vertices: &[Vec3]) -> Option<(usize, f64)> {
 /// a grazing ray was found some 1e4 off along the ray, and its spawned
 /// rays had to start 1.4e6 off the ground (`Primitive::rounding_size`),
 /// over the shadows on it (`docs/robustness.md`, "A ground polygon
-/// reaching 1e20"). pbrt-v4 takes the point from the barycentrics
-/// instead; on a coordinate plane this is simpler and exact: one
-/// correctly rounded difference divided once, as accurate as the distance,
-/// whatever the polygon's size. The plane's `t` has the exact sign of the
-/// line's crossing with that plane; where rounding made the triangle test
-/// report a hit that crossing contradicts (`t_fan ≤ 0` but the plane ahead,
-/// a ray grazing a polygon wholly behind it), `t_fan` is kept, which keeps
-/// `polygon_behind`'s promise (`t ≤ 0`). Whether the ray hits is the
-/// triangle test's alone, so edges stay watertight.
+/// reaching 1e20" and "A tilted polygon reaching 1e20"). In a coordinate
+/// plane the hit is met as a box's face is, `(c − o)/d` on that axis: one
+/// correctly rounded difference divided once. Tilted, the plane through
+/// the triangle's vertices is met at `n·(v₀ − o) / n·d` with `n = (v₁ −
+/// v₀) × (v₂ − v₀)`, both products evaluated exactly (`exact`) and
+/// rounded once each: as accurate as the distance travelled, whatever the
+/// reach, at the cost of a few thousand operations, which only the rare
+/// primitives reaching 2^20 times beyond their hits pay. The plane's `t`
+/// has the exact sign of the line's crossing with that plane; where
+/// rounding made the triangle test report a hit that crossing contradicts
+/// (`t_fan ≤ 0` but the plane ahead, a ray grazing a polygon wholly behind
+/// it, every vertex behind its start), `t_fan` is kept, which keeps
+/// `polygon_behind`'s promise (`t ≤ 0`).
+/// Whether the ray hits is the triangle test's alone, so edges stay
+/// watertight.
 #[inline]
-fn on_coordinate_plane(ray: &Ray, vertices: &[Vec3], t_fan: f64) -> f64 {
-    let Some((k, c)) = coordinate_plane(vertices) else {
+fn on_plane(ray: &Ray, tri: [Vec3; 3], vertices: &[Vec3], t_fan: f64) -> f64 {
+    let t = if let Some((k, c)) = coordinate_plane(vertices) {
+        (c - ray.origin[k]) / ray.dir[k]
+    } else if planar_extent(vertices) > FAR_REACH * ray.at(t_fan).abs().max_element() {
+        match exact_plane_t(ray, tri) {
+            Some(t) => t,
+            None => return t_fan,
+        }
+    } else {
         return t_fan;
     };
-    let t = (c - ray.origin[k]) / ray.dir[k];
-    if t.is_finite() && (t <= 0.0 || t_fan > 0.0) {
+    // Kept: `t_fan ≤ 0` from a hit rounding made up on a polygon wholly
+    // behind the ray's start, whose plane the line crosses ahead, outside
+    // it. Any other `t_fan ≤ 0` against a plane ahead is the triangle
+    // test's cancellation (a hit ahead, its `t` off by ε times the reach).
+    if t.is_finite() && (t <= 0.0 || t_fan > 0.0 || !vertices_behind(ray, vertices)) {
         t
     } else {
         t_fan
     }
+}
+
+/// The largest side of the box around `vertices`, as the primitive's world
+/// bounds give it (`world_bounds`): triangles and polygons are always in
+/// world coordinates (`bake`).
+#[inline]
+fn planar_extent(vertices: &[Vec3]) -> f64 {
+    let b = Aabb::from_points(vertices.iter().copied());
+    (b.max - b.min).max_element()
+}
+
+/// `t` where the ray meets the plane through `tri`, from exact products
+/// (see `on_plane`): with `a, b, c` the vertices less the ray's origin,
+/// `n·(v₀ − o) = a·(b × c)` and `n·d = ((b − a) × (c − a))·d`. None where
+/// the plane is parallel to the ray or a product overflowed.
+fn exact_plane_t(ray: &Ray, tri: [Vec3; 3]) -> Option<f64> {
+    use super::exact::Expansion;
+    let less = |p: Vec3, q: Vec3| [0, 1, 2].map(|k| Expansion::diff(p[k], q[k]));
+    let cross = |u: &[Expansion; 3], w: &[Expansion; 3]| {
+        [
+            u[1].mul(&w[2]).sub(&u[2].mul(&w[1])),
+            u[2].mul(&w[0]).sub(&u[0].mul(&w[2])),
+            u[0].mul(&w[1]).sub(&u[1].mul(&w[0])),
+        ]
+    };
+    let o = ray.origin;
+    let [a, b, c] = tri.map(|v| less(v, o));
+    let bc = cross(&b, &c);
+    let num = a[0]
+        .mul(&bc[0])
+        .add(&a[1].mul(&bc[1]))
+        .add(&a[2].mul(&bc[2]));
+    let n = cross(&less(tri[1], tri[0]), &less(tri[2], tri[0]));
+    let d = ray.dir;
+    let den = n[0].scale(d.x).add(&n[1].scale(d.y)).add(&n[2].scale(d.z));
+    let t = num.estimate() / den.estimate();
+    t.is_finite().then_some(t)
 }
 
 /// The roots of `|f + t·d|² = r²`: the ray (relative to a centre, or its
@@ -848,8 +921,14 @@ enum Roots {
 /// decided by whether the origin is inside, with no division.
 #[inline]
 fn circle_roots(f: Vec3, d: Vec3, r: f64) -> Roots {
+    circle_roots_with(f, d, r, f.dot(f) - r * r)
+}
+
+/// `circle_roots` with `c = f·f − r²` given (`sphere_hits` may give it
+/// exactly).
+#[inline]
+fn circle_roots_with(f: Vec3, d: Vec3, r: f64, c: f64) -> Roots {
     let a = d.dot(d);
-    let c = f.dot(f) - r * r;
     // The answer for a ray (nearly) parallel to the axis: the distance to
     // the axis does not change, so the origin decides.
     let parallel = if c < 0.0 { Roots::All } else { Roots::None };
@@ -885,11 +964,46 @@ fn circle_roots(f: Vec3, d: Vec3, r: f64) -> Roots {
     }
 }
 
+/// A sphere's span. Where the sphere reaches far beyond the hit nearer the
+/// ray's origin (a ground of radius 1e20 under a scene of size 1, its
+/// extent `2^20` times the hit point's largest coordinate), the roots are
+/// taken again with `c = |o − centre|² − r²` evaluated exactly (`exact`).
+///
+/// Why: that root is `c/q`, and `c` is the difference of two squares of
+/// the radius's size: in f64 it is off by ε·r², so the hit by ε·r, some
+/// 1e4 at 1e20 (and the ray's origin is itself rounded away by as much in
+/// `o − centre`), and the spawned rays were offset by 64 ε of the extent,
+/// over the shadows on it; at 1e16 to 1e30 more than half of the pixels
+/// of a test scene differed from a flat ground's. With `c` exact and `q`
+/// accurate to a few ulps (its terms `b = f·d` and the discriminant do not
+/// cancel unless the ray grazes the sphere), the hit is as accurate as
+/// the distance travelled, so it is offset by no size
+/// (`Primitive::rounding_size`).
 fn sphere_hits(ray: &Ray, center: Vec3, radius: f64) -> PrimHits {
-    match circle_roots(ray.origin - center, ray.dir, radius) {
+    let f = ray.origin - center;
+    let mut roots = circle_roots(f, ray.dir, radius);
+    if let Roots::Two(t0, t1) = roots {
+        let near = if t0.abs() <= t1.abs() { t0 } else { t1 };
+        if 2.0 * radius > FAR_REACH * ray.at(near).abs().max_element() {
+            roots = circle_roots_with(f, ray.dir, radius, exact_power(ray.origin, center, radius));
+        }
+    }
+    match roots {
         Roots::Two(t0, t1) => solid(crossing(t0, 0), crossing(t1, 0)),
         Roots::None | Roots::All => PrimHits::Miss,
     }
+}
+
+/// `|o − centre|² − r²`, the power of `o` with respect to the sphere,
+/// evaluated exactly and rounded once (see `sphere_hits`).
+fn exact_power(o: Vec3, center: Vec3, r: f64) -> f64 {
+    use super::exact::Expansion;
+    let mut power = Expansion::diff(0.0, r).mul(&Expansion::diff(r, 0.0));
+    for k in 0..3 {
+        let f = Expansion::diff(o[k], center[k]);
+        power = power.add(&f.mul(&f));
+    }
+    power.estimate()
 }
 
 /// Slab test. A zero direction component (+0.0 or −0.0 alike, case 8) never
@@ -958,6 +1072,12 @@ fn box_behind(ray: &Ray, min: Vec3, max: Vec3, t_min: f64) -> bool {
 /// `+0.0` where products underflow: hence "at or before" `t_min ≥ 0`).
 #[inline]
 fn polygon_behind(ray: &Ray, p: &Polygon) -> bool {
+    vertices_behind(ray, &p.vertices)
+}
+
+/// Whether every vertex's ray-space `z` is negative (`polygon_behind`).
+#[inline]
+fn vertices_behind(ray: &Ray, vertices: &[Vec3]) -> bool {
     // `Shear::new`'s axis and scale, and `Shear::project`'s `z`, with the
     // same operations (the rest of the shear is not needed here).
     let Some((kz, dz)) = Shear::depth_axis(ray) else {
@@ -965,7 +1085,7 @@ fn polygon_behind(ray: &Ray, p: &Polygon) -> bool {
         return true;
     };
     let (sz, o) = (1.0 / dz, ray.origin.to_array()[kz]);
-    p.vertices.iter().all(|v| sz * (v.to_array()[kz] - o) < 0.0)
+    vertices.iter().all(|v| sz * (v.to_array()[kz] - o) < 0.0)
 }
 
 /// The interval of `t` between the planes through `base` and `top`
@@ -1439,7 +1559,8 @@ fn polygon_hits(ray: &Ray, p: &Polygon) -> PrimHits {
             shear.triangle(*a, *b, *c)
         };
         if let Some(t) = hit {
-            let t = on_coordinate_plane(ray, &p.vertices, t);
+            let tri = [i, j, k].map(|i| p.vertices[i]);
+            let t = on_plane(ray, tri, &p.vertices, t);
             return sheet(Some(crossing(t, 0)), None);
         }
     }

@@ -944,6 +944,40 @@ fn triangle_hits_match_the_plane_and_barycentrics() {
     assert_vec_close(normal_at(&tri, o, d, cs[0]), n.normalize(), 1e-15);
 }
 
+/// A tilted triangle reaching 1e20 to 1e50 away, on the plane `z = (x +
+/// y) / 64` (its vertices on it exactly: sums of `±far` and 0 are exact),
+/// met near the origin: `t` as
+/// the small plane equation gives it, to 1e-14, and a spawned ray's offset
+/// that needs no size (`Primitive::rounding_size`). The triangle test alone
+/// was some 1e4 off at 1e20 (`shape::on_plane`).
+#[test]
+fn a_tilted_triangle_reaching_far_is_met_on_its_exact_plane() {
+    let on = |x: f64, y: f64| v(x, y, (x + y) / 64.0);
+    let mut state = 7u64;
+    let mut unit = || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    for far in [1e20, 1e30, 1e50] {
+        let tri = triangle(on(-far, -far), on(far, -far), on(0.0, far));
+        for _ in 0..200 {
+            let o = v(unit() * 4.0 - 2.0, unit() * 4.0 - 2.0, 1.0 + unit() * 3.0);
+            let d = v(unit() - 0.5, unit() - 0.5, -0.2 - unit());
+            // o + t·d on the plane: 64·z = x + y.
+            let want = (o.x + o.y - 64.0 * o.z) / (64.0 * d.z - d.x - d.y);
+            let cs = crossings(&hits(&tri, o, d));
+            assert_eq!(cs.len(), 1, "reaching {far:e}: {o} + t·{d} misses");
+            assert_close(cs[0].t, want, 1e-14);
+            assert_eq!(tri.rounding_size(o + d * want), 0.0);
+        }
+    }
+    // Near its own vertices it keeps the triangle test and its size.
+    let tri = triangle(on(-1e20, -1e20), on(1e20, -1e20), on(0.0, 1e20));
+    assert!(tri.rounding_size(on(-1e20, -1e20)) > 1e20);
+}
+
 /// The 12 triangles of the cube [0,1]³, outward-facing, with the diagonals
 /// of neighbouring faces in different directions.
 fn cube_triangles() -> Vec<Primitive> {

@@ -497,7 +497,7 @@ impl Gen {
                 // Star-shaped about its centre (so simple), in the plane
                 // z = 0 so that rounding keeps it planar; a transform turns it,
                 // one time in three about z alone, so that it stays in a
-                // coordinate plane (met as a box's face, `on_coordinate_plane`).
+                // coordinate plane (met as a box's face, `shape::on_plane`).
                 let level = self.rng.chance(1.0 / 3.0);
                 let n = 3 + self.rng.below(6);
                 let gap = TAU / n as f64;

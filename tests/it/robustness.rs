@@ -838,6 +838,59 @@ fn a_ground_polygon_reaching_1e50_away_shades_as_one_reaching_1e4() {
     }
 }
 
+/// The same ground tilted out of every coordinate plane, as a polygon and
+/// as two triangles on the plane `z = (x + y) / 64` (every vertex on it
+/// exactly: the slope is a power of two), reaching 1e20, 1e30 and 1e50
+/// away: every pixel within 1e-6 of the picture at 1e4, the ball's shadow
+/// on it included, with the cells as Roth. The triangle test's `t` (its
+/// vertices' depths, ±1e20 for a grazing ray, weighed by edge functions
+/// near ½) was some 1e4 off at 1e20, so spawned rays had to start 64 ε of
+/// the extent (1.4e6) off the ground, over the ball: its shadow was gone
+/// (`docs/robustness.md`, "A tilted polygon reaching 1e20"). A planar
+/// primitive's `t` is now the plane's, from exact arithmetic
+/// (`csg::exact`), wherever its reach dwarfs the hit's distances.
+#[test]
+fn a_tilted_ground_polygon_reaching_1e50_away_shades_as_one_reaching_1e4() {
+    let at = |x: f64, y: f64| format!("({x:?}, {y:?}, {:?})", (x + y) / 64.0);
+    let polygon = |far: f64| {
+        let x = -far;
+        format!(
+            "Polygon(vertices: [{}, {}, {}, {}]),",
+            at(x, x),
+            at(4.0, x),
+            at(4.0, 4.0),
+            at(x, 4.0)
+        )
+    };
+    let triangles = |far: f64| {
+        let x = -far;
+        format!(
+            "Triangle(a: {}, b: {}, c: {}), Triangle(a: {}, b: {}, c: {}),",
+            at(x, x),
+            at(4.0, x),
+            at(4.0, 4.0),
+            at(x, x),
+            at(4.0, 4.0),
+            at(x, 4.0)
+        )
+    };
+    for (kind, ground) in [
+        ("polygon", &polygon as &dyn Fn(f64) -> String),
+        ("triangles", &triangles),
+    ] {
+        let scene = |far: f64| far_ground_scene_with(&ground(far));
+        let (near, _) = assert_renders_equal(&scene(1e4), 64, 48);
+        for far in [1e20, 1e30, 1e50] {
+            let (film, _) = assert_renders_equal(&scene(far), 64, 48);
+            let bad = fraction_differing(&film, &near, 1e-6);
+            assert!(
+                bad == 0.0,
+                "the tilted {kind} reaching {far:e}: {bad} of pixels differ from one reaching 1e4"
+            );
+        }
+    }
+}
+
 /// Discs for a ground, a cone and a cylinder of height 0.5 and radius
 /// 1e20 to 1e45, tilted or not: within the scene their surfaces are flat
 /// to 1e-20, and each must shade as a slab of the same reach does (every
@@ -885,6 +938,33 @@ fn a_disc_reaching_1e30_shades_as_a_slab() {
                 );
             }
         }
+    }
+}
+
+/// A sphere of radius 1e12 to 1e45 for a ground, its top at `z = 0` (a
+/// "planet" under the scene): within the scene it is flat to 1e-10, and it
+/// must shade as a slab does (every pixel within 1e-6), the ball's shadow
+/// on it included, with the cells as Roth. In f64 the power of a ray's
+/// origin, `|o − centre|² − r²`, cancels from terms of the radius's square
+/// (and `o − centre` rounds the origin away), so hits were off by ε·r and
+/// spawned rays offset by 64 ε of the extent: at 1e16 and beyond more than
+/// half of the pixels differed from the slab's, at 1e12 a third by 1e-6.
+/// Such a sphere's power is now exact (`csg::shape::sphere_hits`).
+#[test]
+fn a_sphere_ground_of_radius_1e45_shades_as_a_slab() {
+    for far in [1e12, 1e16, 1e20, 1e30, 1e45] {
+        let slab = format!(
+            "Box(min: ({x:?}, {x:?}, -0.5), max: ({far:?}, {far:?}, 0)),",
+            x = -far
+        );
+        let (want, _) = assert_renders_equal(&far_ground_scene_with(&slab), 64, 48);
+        let sphere = format!("Sphere(center: (0, 0, {:?}), radius: {far:?}),", -far);
+        let (got, _) = assert_renders_equal(&far_ground_scene_with(&sphere), 64, 48);
+        let bad = fraction_differing(&got, &want, 1e-6);
+        assert!(
+            bad == 0.0,
+            "the sphere of radius {far:e}: {bad} of pixels differ from the slab"
+        );
     }
 }
 

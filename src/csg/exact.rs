@@ -1,0 +1,178 @@
+//! Exact arithmetic on f64 values by floating-point expansions (Priest
+//! 1991; Shewchuk, "Adaptive Precision Floating-Point Arithmetic and Fast
+//! Robust Geometric Predicates", 1997): a value is held as a sum of f64
+//! components, and sums, differences and products of such values are exact
+//! (barring overflow and underflow). An expression that cancels
+//! catastrophically in f64 (the distance to a plane through points 1e20
+//! away) then comes out to within a few ulps of its true value.
+//!
+//! Used by `shape` for the plane of a planar primitive that reaches far
+//! beyond its hits (`shape::on_plane`), a rare path: the components live
+//! in small vectors, and nothing here is meant for a hot loop. Owns these
+//! functions only; touches no other module.
+
+/// `a + b` as `(s, e)`: `s` the rounded sum, `e` its rounding error, so
+/// that `s + e == a + b` exactly (Knuth's two-sum; any order of magnitude).
+#[inline]
+fn two_sum(a: f64, b: f64) -> (f64, f64) {
+    let s = a + b;
+    let bv = s - a;
+    let av = s - bv;
+    (s, (a - av) + (b - bv))
+}
+
+/// `a · b` as `(p, e)` with `p + e == a · b` exactly: the fused
+/// multiply-add rounds once, so `a·b − p` is exact.
+#[inline]
+fn two_prod(a: f64, b: f64) -> (f64, f64) {
+    let p = a * b;
+    (p, a.mul_add(b, -p))
+}
+
+/// An exact value: the sum of its components, which are non-overlapping
+/// and in increasing order of magnitude, with no zeros (Shewchuk's
+/// invariants, kept by `grow`).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Expansion(Vec<f64>);
+
+impl Expansion {
+    /// `a − b`, exactly.
+    pub fn diff(a: f64, b: f64) -> Expansion {
+        let mut e = Expansion(Vec::with_capacity(2));
+        e.grow(a);
+        e.grow(-b);
+        e
+    }
+
+    /// Adds `b` (Shewchuk's Grow-Expansion with zero elimination): each
+    /// component in turn is two-summed into a running sum, whose errors
+    /// become the new components. Exact for any components; the invariants
+    /// hold when they held before.
+    fn grow(&mut self, b: f64) {
+        let mut q = b;
+        let mut kept = 0;
+        for i in 0..self.0.len() {
+            let (s, h) = two_sum(q, self.0[i]);
+            q = s;
+            if h != 0.0 {
+                self.0[kept] = h;
+                kept += 1;
+            }
+        }
+        self.0.truncate(kept);
+        if q != 0.0 {
+            self.0.push(q);
+        }
+    }
+
+    /// `self + o`, exactly.
+    pub fn add(&self, o: &Expansion) -> Expansion {
+        let (mut sum, other) = if self.0.len() >= o.0.len() {
+            (self.clone(), o)
+        } else {
+            (o.clone(), self)
+        };
+        for &c in &other.0 {
+            sum.grow(c);
+        }
+        sum
+    }
+
+    /// `self − o`, exactly.
+    pub fn sub(&self, o: &Expansion) -> Expansion {
+        let mut diff = self.clone();
+        for &c in &o.0 {
+            diff.grow(-c);
+        }
+        diff
+    }
+
+    /// `self · b`, exactly.
+    pub fn scale(&self, b: f64) -> Expansion {
+        let mut r = Expansion(Vec::with_capacity(2 * self.0.len()));
+        for &a in &self.0 {
+            let (p, e) = two_prod(a, b);
+            r.grow(e);
+            r.grow(p);
+        }
+        r
+    }
+
+    /// `self · o`, exactly.
+    pub fn mul(&self, o: &Expansion) -> Expansion {
+        let mut r = Expansion::default();
+        for &b in &o.0 {
+            for &a in &self.0 {
+                let (p, e) = two_prod(a, b);
+                r.grow(e);
+                r.grow(p);
+            }
+        }
+        r
+    }
+
+    /// The value to within a few ulps: the components summed from the
+    /// smallest, each below an ulp of the next. Zero only when the value
+    /// is zero; not finite when a step overflowed.
+    pub fn estimate(&self) -> f64 {
+        self.0.iter().fold(0.0, |s, &c| s + c)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Exact rational arithmetic on dyadic numbers for the check: every f64
+    /// is `m · 2^k`; held as an i128 numerator over a common power of two.
+    fn dyadic(x: f64, shift: i32) -> i128 {
+        // x · 2^shift, exact for the test's values (a few bits, small
+        // exponents).
+        let v = x * 2f64.powi(shift);
+        assert_eq!(v.fract(), 0.0, "{x} is not a multiple of 2^-{shift}");
+        v as i128
+    }
+
+    #[test]
+    fn sums_and_products_that_cancel_in_f64_are_exact() {
+        // (1e20 + 3) − 1e20 is 3 here, 0 or 16384 in f64.
+        let big = 1e20;
+        let e = Expansion::diff(big, -3.0).sub(&Expansion::diff(big, 0.0));
+        assert_eq!(e.estimate(), 3.0);
+        // (2^60 + 1)² − 2^120 = 2^61 + 1.
+        let a = Expansion::diff(2f64.powi(60), -1.0);
+        let sq = a.mul(&a).sub(&Expansion::diff(2f64.powi(120), 0.0));
+        assert_eq!(sq.estimate(), 2f64.powi(61) + 1.0);
+        assert_eq!(sq.0, vec![1.0, 2f64.powi(61)]);
+        // Scaling keeps every bit.
+        let s = Expansion::diff(2f64.powi(70), -0.75).scale(3.0);
+        assert_eq!(s.0, vec![2.25, 3.0 * 2f64.powi(70)]);
+    }
+
+    #[test]
+    fn random_small_dyadic_expressions_match_integer_arithmetic() {
+        // Values k · 2^-4 with |k| < 2^20 at scales up to 2^40: every
+        // product of two differences fits an i128 at a shift of 8.
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            state >> 11
+        };
+        for _ in 0..2000 {
+            let mut val = || {
+                let k = (next() % (1 << 20)) as f64 - (1 << 19) as f64;
+                let scale = 2f64.powi((next() % 40) as i32);
+                k * scale / 16.0
+            };
+            let (a, b, c, d) = (val(), val(), val(), val());
+            let x = Expansion::diff(a, b).mul(&Expansion::diff(c, d));
+            let want = (dyadic(a, 4) - dyadic(b, 4)) * (dyadic(c, 4) - dyadic(d, 4));
+            let got: i128 = x.0.iter().map(|&v| dyadic(v, 8)).sum();
+            assert_eq!(got, want, "({a} − {b})·({c} − {d})");
+            assert!(x.0.windows(2).all(|w| w[0].abs() < w[1].abs()));
+            assert!(x.0.iter().all(|&v| v != 0.0));
+        }
+    }
+}
