@@ -772,7 +772,7 @@ fn intersect_shape(shape: &Shape, ray: &Ray) -> PrimHits {
         }
         Shape::Triangle { a, b, c } => match Shear::new(ray).and_then(|s| s.triangle(*a, *b, *c)) {
             Some(t) => {
-                let t = on_plane(ray, [*a, *b, *c], &[*a, *b, *c], t);
+                let t = on_plane(ray, &[*a, *b, *c], [0, 1, 2], t);
                 sheet(Some(crossing(t, 0)), None)
             }
             None => PrimHits::Miss,
@@ -837,26 +837,50 @@ const FAR_REACH: f64 = (1u64 << 20) as f64;
 /// `polygon_behind`'s promise (`t ≤ 0`).
 /// Whether the ray hits is the triangle test's alone, so edges stay
 /// watertight.
-#[inline]
-fn on_plane(ray: &Ray, tri: [Vec3; 3], vertices: &[Vec3], t_fan: f64) -> f64 {
+#[inline(always)]
+fn on_plane(ray: &Ray, vertices: &[Vec3], tri: [usize; 3], t_fan: f64) -> f64 {
     let t = if let Some((k, c)) = coordinate_plane(vertices) {
         (c - ray.origin[k]) / ray.dir[k]
-    } else if planar_extent(vertices) > FAR_REACH * ray.at(t_fan).abs().max_element() {
-        match exact_plane_t(ray, tri) {
+    } else {
+        match far_plane_t(ray, vertices, tri, t_fan) {
             Some(t) => t,
             None => return t_fan,
         }
-    } else {
-        return t_fan;
     };
-    // Kept: `t_fan ≤ 0` from a hit rounding made up on a polygon wholly
-    // behind the ray's start, whose plane the line crosses ahead, outside
-    // it. Any other `t_fan ≤ 0` against a plane ahead is the triangle
-    // test's cancellation (a hit ahead, its `t` off by ε times the reach).
-    if t.is_finite() && (t <= 0.0 || t_fan > 0.0 || !vertices_behind(ray, vertices)) {
+    if !t.is_finite() {
+        t_fan
+    } else if t <= 0.0 || t_fan > 0.0 {
         t
     } else {
+        ahead_of_behind(ray, vertices, t, t_fan)
+    }
+}
+
+/// `on_plane` where the triangle test's `t_fan ≤ 0` and the plane's `t` is
+/// ahead: `t_fan` is kept for a hit rounding made up on a polygon wholly
+/// behind the ray's start (every vertex behind it), whose plane the line
+/// crosses ahead, outside it; any other such `t_fan` is the triangle
+/// test's cancellation (a hit ahead, its `t` off by ε times the reach),
+/// and the plane's `t` is taken. Rare, so out of line.
+#[cold]
+#[inline(never)]
+fn ahead_of_behind(ray: &Ray, vertices: &[Vec3], t: f64, t_fan: f64) -> f64 {
+    if vertices_behind(ray, vertices) {
         t_fan
+    } else {
+        t
+    }
+}
+
+/// `on_plane` for a tilted primitive: the exact plane's `t` where it
+/// reaches `FAR_REACH` times beyond the hit. Out of line, so that the
+/// triangle tests of meshes and grounds stay small.
+#[inline(never)]
+fn far_plane_t(ray: &Ray, vertices: &[Vec3], tri: [usize; 3], t_fan: f64) -> Option<f64> {
+    if planar_extent(vertices) > FAR_REACH * ray.at(t_fan).abs().max_element() {
+        exact_plane_t(ray, tri.map(|i| vertices[i]))
+    } else {
+        None
     }
 }
 
@@ -985,13 +1009,22 @@ fn sphere_hits(ray: &Ray, center: Vec3, radius: f64) -> PrimHits {
     if let Roots::Two(t0, t1) = roots {
         let near = if t0.abs() <= t1.abs() { t0 } else { t1 };
         if 2.0 * radius > FAR_REACH * ray.at(near).abs().max_element() {
-            roots = circle_roots_with(f, ray.dir, radius, exact_power(ray.origin, center, radius));
+            roots = far_sphere_roots(ray, center, radius);
         }
     }
     match roots {
         Roots::Two(t0, t1) => solid(crossing(t0, 0), crossing(t1, 0)),
         Roots::None | Roots::All => PrimHits::Miss,
     }
+}
+
+/// `sphere_hits`' roots with the exact power of the ray's origin. Out of
+/// line: rare, and the common sphere test stays small.
+#[cold]
+#[inline(never)]
+fn far_sphere_roots(ray: &Ray, center: Vec3, radius: f64) -> Roots {
+    let c = exact_power(ray.origin, center, radius);
+    circle_roots_with(ray.origin - center, ray.dir, radius, c)
 }
 
 /// `|o − centre|² − r²`, the power of `o` with respect to the sphere,
@@ -1559,8 +1592,7 @@ fn polygon_hits(ray: &Ray, p: &Polygon) -> PrimHits {
             shear.triangle(*a, *b, *c)
         };
         if let Some(t) = hit {
-            let tri = [i, j, k].map(|i| p.vertices[i]);
-            let t = on_plane(ray, tri, &p.vertices, t);
+            let t = on_plane(ray, &p.vertices, [i, j, k], t);
             return sheet(Some(crossing(t, 0)), None);
         }
     }
