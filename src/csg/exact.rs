@@ -6,10 +6,16 @@
 //! catastrophically in f64 (the distance to a plane through points 1e20
 //! away) then comes out to within a few ulps of its true value.
 //!
-//! Used by `shape` for the plane of a planar primitive that reaches far
-//! beyond its hits (`shape::on_plane`), a rare path: the components live
-//! in small vectors, and nothing here is meant for a hot loop. Owns these
-//! functions only; touches no other module.
+//! Used by `shape` for the plane of a planar primitive, and the power of a
+//! sphere, that reach far beyond their hits (`shape::on_plane`,
+//! `shape::sphere_hits`), a rare path. The components live inline up to
+//! `INLINE` of them (the products there rarely need more), on the heap
+//! beyond. Owns these functions only; touches no other module.
+
+use smallvec::SmallVec;
+
+/// Components an expansion holds without a heap allocation.
+const INLINE: usize = 8;
 
 /// `a + b` as `(s, e)`: `s` the rounded sum, `e` its rounding error, so
 /// that `s + e == a + b` exactly (Knuth's two-sum; any order of magnitude).
@@ -33,12 +39,12 @@ fn two_prod(a: f64, b: f64) -> (f64, f64) {
 /// and in increasing order of magnitude, with no zeros (Shewchuk's
 /// invariants, kept by `grow`).
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct Expansion(Vec<f64>);
+pub struct Expansion(SmallVec<[f64; INLINE]>);
 
 impl Expansion {
     /// `a − b`, exactly.
     pub fn diff(a: f64, b: f64) -> Expansion {
-        let mut e = Expansion(Vec::with_capacity(2));
+        let mut e = Expansion::default();
         e.grow(a);
         e.grow(-b);
         e
@@ -65,50 +71,33 @@ impl Expansion {
         }
     }
 
-    /// `self + o`, exactly.
-    pub fn add(&self, o: &Expansion) -> Expansion {
-        let (mut sum, other) = if self.0.len() >= o.0.len() {
-            (self.clone(), o)
-        } else {
-            (o.clone(), self)
-        };
-        for &c in &other.0 {
-            sum.grow(c);
-        }
-        sum
-    }
-
-    /// `self − o`, exactly.
-    pub fn sub(&self, o: &Expansion) -> Expansion {
-        let mut diff = self.clone();
-        for &c in &o.0 {
-            diff.grow(-c);
-        }
-        diff
-    }
-
-    /// `self · b`, exactly.
-    pub fn scale(&self, b: f64) -> Expansion {
-        let mut r = Expansion(Vec::with_capacity(2 * self.0.len()));
-        for &a in &self.0 {
-            let (p, e) = two_prod(a, b);
-            r.grow(e);
-            r.grow(p);
-        }
-        r
-    }
-
-    /// `self · o`, exactly.
-    pub fn mul(&self, o: &Expansion) -> Expansion {
-        let mut r = Expansion::default();
-        for &b in &o.0 {
-            for &a in &self.0 {
+    /// Adds `x · y · sign` (`sign` ±1), exactly, each partial product
+    /// grown into `self` in place: no temporary expansion is made.
+    pub fn add_product(&mut self, x: &Expansion, y: &Expansion, sign: f64) {
+        for &b in &y.0 {
+            let b = b * sign;
+            for &a in &x.0 {
                 let (p, e) = two_prod(a, b);
-                r.grow(e);
-                r.grow(p);
+                self.grow(e);
+                self.grow(p);
             }
         }
-        r
+    }
+
+    /// Adds `x · b`, exactly.
+    pub fn add_scaled(&mut self, x: &Expansion, b: f64) {
+        for &a in &x.0 {
+            let (p, e) = two_prod(a, b);
+            self.grow(e);
+            self.grow(p);
+        }
+    }
+
+    /// Adds `a · b` of two f64 values, exactly.
+    pub fn add_f64_product(&mut self, a: f64, b: f64) {
+        let (p, e) = two_prod(a, b);
+        self.grow(e);
+        self.grow(p);
     }
 
     /// The value to within a few ulps: the components summed from the
@@ -133,20 +122,30 @@ mod tests {
         v as i128
     }
 
+    /// `x · y` as a new expansion.
+    fn product(x: &Expansion, y: &Expansion) -> Expansion {
+        let mut r = Expansion::default();
+        r.add_product(x, y, 1.0);
+        r
+    }
+
     #[test]
     fn sums_and_products_that_cancel_in_f64_are_exact() {
         // (1e20 + 3) − 1e20 is 3 here, 0 or 16384 in f64.
         let big = 1e20;
-        let e = Expansion::diff(big, -3.0).sub(&Expansion::diff(big, 0.0));
+        let mut e = Expansion::diff(big, -3.0);
+        e.add_scaled(&Expansion::diff(big, 0.0), -1.0);
         assert_eq!(e.estimate(), 3.0);
         // (2^60 + 1)² − 2^120 = 2^61 + 1.
         let a = Expansion::diff(2f64.powi(60), -1.0);
-        let sq = a.mul(&a).sub(&Expansion::diff(2f64.powi(120), 0.0));
+        let mut sq = product(&a, &a);
+        sq.add_f64_product(2f64.powi(60), -2f64.powi(60));
         assert_eq!(sq.estimate(), 2f64.powi(61) + 1.0);
-        assert_eq!(sq.0, vec![1.0, 2f64.powi(61)]);
+        assert_eq!(sq.0.as_slice(), [1.0, 2f64.powi(61)]);
         // Scaling keeps every bit.
-        let s = Expansion::diff(2f64.powi(70), -0.75).scale(3.0);
-        assert_eq!(s.0, vec![2.25, 3.0 * 2f64.powi(70)]);
+        let mut s = Expansion::default();
+        s.add_scaled(&Expansion::diff(2f64.powi(70), -0.75), 3.0);
+        assert_eq!(s.0.as_slice(), [2.25, 3.0 * 2f64.powi(70)]);
     }
 
     #[test]
@@ -167,7 +166,7 @@ mod tests {
                 k * scale / 16.0
             };
             let (a, b, c, d) = (val(), val(), val(), val());
-            let x = Expansion::diff(a, b).mul(&Expansion::diff(c, d));
+            let x = product(&Expansion::diff(a, b), &Expansion::diff(c, d));
             let want = (dyadic(a, 4) - dyadic(b, 4)) * (dyadic(c, 4) - dyadic(d, 4));
             let got: i128 = x.0.iter().map(|&v| dyadic(v, 8)).sum();
             assert_eq!(got, want, "({a} − {b})·({c} − {d})");

@@ -828,7 +828,7 @@ const FAR_REACH: f64 = (1u64 << 20) as f64;
 /// the triangle's vertices is met at `n·(v₀ − o) / n·d` with `n = (v₁ −
 /// v₀) × (v₂ − v₀)`, both products evaluated exactly (`exact`) and
 /// rounded once each: as accurate as the distance travelled, whatever the
-/// reach, at the cost of a few thousand operations, which only the rare
+/// reach, at the cost of about a microsecond, which only the rare
 /// primitives reaching 2^20 times beyond their hits pay. The plane's `t`
 /// has the exact sign of the line's crossing with that plane; where
 /// rounding made the triangle test report a hit that crossing contradicts
@@ -894,29 +894,25 @@ fn planar_extent(vertices: &[Vec3]) -> f64 {
 }
 
 /// `t` where the ray meets the plane through `tri`, from exact products
-/// (see `on_plane`): with `a, b, c` the vertices less the ray's origin,
-/// `n·(v₀ − o) = a·(b × c)` and `n·d = ((b − a) × (c − a))·d`. None where
-/// the plane is parallel to the ray or a product overflowed.
+/// (see `on_plane`): `n·(v₀ − o) / n·d` with `n = (v₁ − v₀) × (v₂ − v₀)`,
+/// every difference and product exact, each of the two rounded once. None
+/// where the plane is parallel to the ray or a product overflowed.
 fn exact_plane_t(ray: &Ray, tri: [Vec3; 3]) -> Option<f64> {
     use super::exact::Expansion;
     let less = |p: Vec3, q: Vec3| [0, 1, 2].map(|k| Expansion::diff(p[k], q[k]));
-    let cross = |u: &[Expansion; 3], w: &[Expansion; 3]| {
-        [
-            u[1].mul(&w[2]).sub(&u[2].mul(&w[1])),
-            u[2].mul(&w[0]).sub(&u[0].mul(&w[2])),
-            u[0].mul(&w[1]).sub(&u[1].mul(&w[0])),
-        ]
-    };
-    let o = ray.origin;
-    let [a, b, c] = tri.map(|v| less(v, o));
-    let bc = cross(&b, &c);
-    let num = a[0]
-        .mul(&bc[0])
-        .add(&a[1].mul(&bc[1]))
-        .add(&a[2].mul(&bc[2]));
-    let n = cross(&less(tri[1], tri[0]), &less(tri[2], tri[0]));
-    let d = ray.dir;
-    let den = n[0].scale(d.x).add(&n[1].scale(d.y)).add(&n[2].scale(d.z));
+    let (e1, e2) = (less(tri[1], tri[0]), less(tri[2], tri[0]));
+    let mut n: [Expansion; 3] = Default::default();
+    for (k, n) in n.iter_mut().enumerate() {
+        let (i, j) = ((k + 1) % 3, (k + 2) % 3);
+        n.add_product(&e1[i], &e2[j], 1.0);
+        n.add_product(&e1[j], &e2[i], -1.0);
+    }
+    let a = less(tri[0], ray.origin);
+    let (mut num, mut den) = (Expansion::default(), Expansion::default());
+    for k in 0..3 {
+        num.add_product(&n[k], &a[k], 1.0);
+        den.add_scaled(&n[k], ray.dir[k]);
+    }
     let t = num.estimate() / den.estimate();
     t.is_finite().then_some(t)
 }
@@ -1031,10 +1027,11 @@ fn far_sphere_roots(ray: &Ray, center: Vec3, radius: f64) -> Roots {
 /// evaluated exactly and rounded once (see `sphere_hits`).
 fn exact_power(o: Vec3, center: Vec3, r: f64) -> f64 {
     use super::exact::Expansion;
-    let mut power = Expansion::diff(0.0, r).mul(&Expansion::diff(r, 0.0));
+    let mut power = Expansion::default();
+    power.add_f64_product(r, -r);
     for k in 0..3 {
         let f = Expansion::diff(o[k], center[k]);
-        power = power.add(&f.mul(&f));
+        power.add_product(&f, &f, 1.0);
     }
     power.estimate()
 }
