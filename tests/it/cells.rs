@@ -21,7 +21,7 @@ use hypercast::trace::{CameraFrame, Film, Hit, Tracer};
 // ---------------------------------------------------------------------------
 // Helpers.
 
-fn load(ron: &str) -> Scene {
+pub(crate) fn load(ron: &str) -> Scene {
     parse_scene_str(ron, SceneSyntax::Ron, Path::new("cells.ron"))
         .unwrap_or_else(|e| panic!("{e}\n{ron}"))
 }
@@ -1027,6 +1027,30 @@ fn random_scenes_on_a_wide_ground_render_identically_with_the_clip() {
     assert!(clipped >= 140, "{clipped} of 150 scenes clipped");
 }
 
+/// Random scene `ron` (as `lit_random_scene` writes it) on a ground
+/// reaching far beyond it, met by exact arithmetic: by `seed`, a sphere of
+/// radius 1e15 whose top is at `y = −8`, or a polygon reaching 1e20 tilted
+/// out of every coordinate plane.
+pub(crate) fn on_far_ground(ron: &str, seed: u64) -> String {
+    let far = 1e20f64;
+    let tilted = |x: f64, z: f64| format!("({x:?}, {:?}, {z:?})", -8.0 + (x - z) / 64.0);
+    let ground = if seed.is_multiple_of(2) {
+        "Sphere(center: (0, -1000000000000008.0, 0), radius: 1e15)".to_string()
+    } else {
+        format!(
+            "Polygon(vertices: [{}, {}, {}])",
+            tilted(-far, -far),
+            tilted(far, -far),
+            tilted(0.0, far)
+        )
+    };
+    ron.replacen(
+        "objects: [",
+        &format!("objects: [\n        Union(material: \"white\", children: [{ground}]),"),
+        1,
+    )
+}
+
 /// Random CSG scenes on a ground reaching far beyond them, met by exact
 /// arithmetic (`csg::shape::on_plane`, `sphere_hits`): a sphere of radius
 /// 1e15 whose top is at `y = −8`, and a polygon reaching 1e20 tilted out
@@ -1034,29 +1058,13 @@ fn random_scenes_on_a_wide_ground_render_identically_with_the_clip() {
 /// mirrors, glass, lights and cameras inside, outside and behind the eye.
 #[test]
 fn random_scenes_on_a_ground_reaching_far_render_identically() {
-    let far = 1e20f64;
-    let tilted = |x: f64, z: f64| format!("({x:?}, {:?}, {z:?})", -8.0 + (x - z) / 64.0);
-    let grounds = [
-        "Sphere(center: (0, -1000000000000008.0, 0), radius: 1e15)".to_string(),
-        format!(
-            "Polygon(vertices: [{}, {}, {}])",
-            tilted(-far, -far),
-            tilted(far, -far),
-            tilted(0.0, far)
-        ),
-    ];
     let mut failures = Vec::new();
     let mut shown = 0;
     let all = seeds(0..60);
     for seed in all.clone() {
-        let ground = &grounds[(seed % 2) as usize];
         let (primitives, model) = lit_random_scene(seed, 40);
         let bare = scene_to_string(&model, SceneSyntax::Ron).unwrap();
-        let ron = bare.replacen(
-            "objects: [",
-            &format!("objects: [\n        Union(material: \"white\", children: [{ground}]),"),
-            1,
-        );
+        let ron = on_far_ground(&bare, seed);
         let scene = load(&ron);
         let r = random_scene_options();
         let (roth, _) = render_roth(&scene, &r, &|_| {});

@@ -336,13 +336,39 @@ fn a_plan_too_large_for_balance_falls_back_to_a_leaner_one() {
 /// `HYPERCAST_SEEDS=a..b`; one other size: `HYPERCAST_SIZE=WxH`.
 #[test]
 fn random_scenes_on_random_dimensions_equal_one_node() {
+    let n = crate::cells::seeds(0..24).count();
+    let tight = random_scenes_on_random_dimensions(crate::cells::seeds(0..24), false);
+    // The small budgets are the point: most scenes must have run on them.
+    assert!(2 * tight >= n, "only {tight} of {n} runs on a small budget");
+}
+
+/// The same on a ground reaching far beyond the scene, met by exact
+/// arithmetic (`cells::on_far_ground`): a structure whose every box is
+/// grown by the rounding of a walk across 1e15 to 1e20, on every
+/// dimension, capacity and plan.
+#[test]
+fn random_scenes_on_a_ground_reaching_far_equal_one_node_on_random_dimensions() {
+    random_scenes_on_random_dimensions(crate::cells::seeds(0..8), true);
+}
+
+/// `random_scenes_on_random_dimensions_equal_one_node` over `seeds`, on a
+/// far-reaching ground or not: how many ran on one of the small budgets.
+fn random_scenes_on_random_dimensions(seeds: std::ops::Range<u64>, far_ground: bool) -> usize {
+    use hypercast::scene::SceneSyntax;
     use hypercast::scene::load::compile_model;
+    use hypercast::scene::load::scene_to_string;
     let mut failures = Vec::new();
     let mut tight = 0;
-    for seed in crate::cells::seeds(0..24) {
+    for seed in seeds {
         let (primitives, model) = crate::cells::lit_random_scene(seed, 40);
-        let (scene, _) = compile_model(&model, std::path::Path::new("random.ron"))
-            .unwrap_or_else(|e| panic!("seed {seed}: {e}"));
+        let scene = if far_ground {
+            let ron = scene_to_string(&model, SceneSyntax::Ron).unwrap();
+            crate::cells::load(&crate::cells::on_far_ground(&ron, seed))
+        } else {
+            compile_model(&model, std::path::Path::new("random.ron"))
+                .unwrap_or_else(|e| panic!("seed {seed}: {e}"))
+                .0
+        };
         let mix = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 40;
         let d = (mix % 7) as u32;
         let capacity = 1 + (mix / 7 % 3) as usize;
@@ -426,9 +452,7 @@ fn random_scenes_on_random_dimensions_equal_one_node() {
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");
-    // The small budgets are the point: most scenes must have run on them.
-    let n = crate::cells::seeds(0..24).count();
-    assert!(2 * tight >= n, "only {tight} of {n} runs on a small budget");
+    tight
 }
 
 /// Background samples (pixels whose super cell is empty) take no credit:
