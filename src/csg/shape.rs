@@ -162,18 +162,19 @@ impl Primitive {
     /// face is (`on_plane`): size 0 too; so is one reaching 2^21 times
     /// beyond the hit, met on its exact plane, and a sphere as large
     /// against its hit, met with exact arithmetic (`sphere_hits`). A
-    /// cylinder or cone
-    /// combines distances along and from its axis that the hit's distance
-    /// from its base and its height bound (`axial_size`), which for a disc
-    /// of radius 1e20 are far below its extent. Every other shape
-    /// subtracts or combines magnitudes of its own size (a sphere's centre
-    /// and radius, a tilted polygon's vertices), which its world extent
-    /// bounds.
+    /// cylinder or cone combines distances along and from its axis that
+    /// the hit's distance from its base and its height bound
+    /// (`axial_size`), which for a disc of radius 1e20 are far below its
+    /// extent. Every other shape subtracts or combines magnitudes of its
+    /// own size (a sphere's centre and radius, a tilted polygon's
+    /// vertices), which its world extent bounds.
     ///
     /// Before this, a ground box reaching 1e20 pushed every shadow ray from
     /// it 1.4e6 up, over whatever should have shadowed it
     /// (`docs/robustness.md`, "Spawned rays of a box reaching 1e20"), and
-    /// so did a ground polygon ("A ground polygon reaching 1e20").
+    /// so did a ground polygon, tilted or not, and a sphere of radius 1e20
+    /// ("A ground polygon reaching 1e20", "A tilted polygon reaching 1e20",
+    /// "A sphere of radius 1e12 to 1e45 for a ground").
     pub fn rounding_size(&self, p: Vec3) -> f64 {
         let extent = || (self.bounds.max - self.bounds.min).max_element();
         match (&self.shape, &self.transform) {
