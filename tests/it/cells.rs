@@ -1010,21 +1010,35 @@ fn random_scenes_on_a_wide_ground_render_identically_with_the_clip() {
             scene_to_string(&model, SceneSyntax::Ron)
                 .unwrap()
                 .replacen("objects: [", ground, 1);
-        let scene = load(&ron);
-        let r = random_scene_options();
-        let (roth, _) = render_roth(&scene, &r, &|_| {});
-        let (film, _, cs) = render_cells(&scene, &r, CellOptions::default(), &|_| {});
+        let (_, cs) = compare_with_roth(seed, primitives, &ron, &mut failures);
         clipped += usize::from(cs.clip.is_some());
-        if roth.sums() != film.sums() {
-            eprintln!("seed {seed}, {primitives} primitives: cells and Roth differ\n{ron}");
-            failures.push(seed);
-        }
     }
     assert!(
         failures.is_empty(),
         "seeds where cells and Roth differ: {failures:?}"
     );
     assert!(clipped >= 140, "{clipped} of 150 scenes clipped");
+}
+
+/// Renders random scene `ron` (seed `seed`, `primitives` primitives) with
+/// Roth and with the cells at the random scenes' size; where the two
+/// differ, prints the scene and records the seed in `failures`. Roth's
+/// film and the cells' structure, for the caller's own checks.
+fn compare_with_roth(
+    seed: u64,
+    primitives: usize,
+    ron: &str,
+    failures: &mut Vec<u64>,
+) -> (Film, CellStructure) {
+    let scene = load(ron);
+    let r = random_scene_options();
+    let (roth, _) = render_roth(&scene, &r, &|_| {});
+    let (film, _, cs) = render_cells(&scene, &r, CellOptions::default(), &|_| {});
+    if roth.sums() != film.sums() {
+        eprintln!("seed {seed}, {primitives} primitives: cells and Roth differ\n{ron}");
+        failures.push(seed);
+    }
+    (roth, cs)
 }
 
 /// Random scene `ron` (as `lit_random_scene` writes it) on a ground
@@ -1065,16 +1079,9 @@ fn random_scenes_on_a_ground_reaching_far_render_identically() {
         let (primitives, model) = lit_random_scene(seed, 40);
         let bare = scene_to_string(&model, SceneSyntax::Ron).unwrap();
         let ron = on_far_ground(&bare, seed);
-        let scene = load(&ron);
-        let r = random_scene_options();
-        let (roth, _) = render_roth(&scene, &r, &|_| {});
-        let (without, _) = render_roth(&load(&bare), &r, &|_| {});
+        let (roth, _) = compare_with_roth(seed, primitives, &ron, &mut failures);
+        let (without, _) = render_roth(&load(&bare), &random_scene_options(), &|_| {});
         shown += usize::from(roth.sums() != without.sums());
-        let (film, _, _) = render_cells(&scene, &r, CellOptions::default(), &|_| {});
-        if roth.sums() != film.sums() {
-            eprintln!("seed {seed}, {primitives} primitives: cells and Roth differ\n{ron}");
-            failures.push(seed);
-        }
     }
     assert!(
         failures.is_empty(),
