@@ -763,6 +763,30 @@ pub fn machine_json(topo: &Topology, ms: &MachineStats) -> Vec<(&'static str, se
     ]
 }
 
+/// A hint where the walk's margin (`BuildStats::walk_margin`) is a
+/// hundredth or more of the median primitive's size: the scene reaches so
+/// far beyond its detail that the grown boxes blur the subdivision.
+fn coarse_margin_hint(scene: &Scene, margin: f64) -> Option<String> {
+    let mut sizes: Vec<f64> = scene
+        .primitives
+        .iter()
+        .map(|p| (p.bounds.max - p.bounds.min).max_element())
+        .filter(|s| s.is_finite() && *s > 0.0)
+        .collect();
+    if sizes.is_empty() {
+        return None;
+    }
+    sizes.sort_by(f64::total_cmp);
+    let median = sizes[(sizes.len() - 1) / 2];
+    (margin >= 0.01 * median).then(|| {
+        format!(
+            "every box is grown by {margin:.2e} for the walk's rounding, against a median primitive of size \
+             {median:.2e}: the scene reaches so far beyond its detail that the subdivision splits little, and rays \
+             test more (exact all the same; docs/robustness.md, \"A sphere of radius 1e12 to 1e45 for a ground\")"
+        )
+    })
+}
+
 /// The keys describing a cell structure (`--stats`, `inspect --stats`).
 fn structure_json(cs: &CellStructure) -> Vec<(&'static str, serde_json::Value)> {
     let s = &cs.stats;
@@ -781,6 +805,7 @@ fn structure_json(cs: &CellStructure) -> Vec<(&'static str, serde_json::Value)> 
         ("distinct_subtrees", json!(s.distinct_subtrees)),
         ("culled_primitives", json!(s.culled_primitives)),
         ("bsp_splits", json!(s.bsp_splits)),
+        ("walk_margin", json!(s.walk_margin)),
         ("build_seconds", json!(s.build_seconds)),
         ("structure_bytes", json!(s.bytes)),
     ]
@@ -834,6 +859,13 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
     );
     println!("distinct subtrees   {}", s.distinct_subtrees);
     println!("bsp segment splits  {}", s.bsp_splits);
+    println!(
+        "walk margin         {:.2e} (boxes grown for the walk's rounding)",
+        s.walk_margin
+    );
+    if let Some(hint) = coarse_margin_hint(&scene, s.walk_margin) {
+        eprintln!("hypercast: hint: {hint}");
+    }
     println!(
         "structure bytes     {} ({:.2} MiB)",
         s.bytes,

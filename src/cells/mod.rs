@@ -239,6 +239,12 @@ pub struct BuildStats {
     /// the one a single node builds.
     pub forced_splits: u64,
     pub bytes: usize,
+    /// How far every minimal box is grown for the rounding of the walk
+    /// (`walk_rounding`), in world units: nil on scenes of everyday sizes,
+    /// as large as the scene's detail on one reaching 1e13 times beyond
+    /// it, where the subdivision can no longer split the view
+    /// (`docs/robustness.md`).
+    pub walk_margin: f64,
 }
 
 /// The whole subdivision of a scene for one camera.
@@ -535,6 +541,7 @@ impl CellStructure {
         };
         cs.stats = cs.compute_stats(tree, culled, distinct, splits, &prim_counts);
         cs.stats.forced_splits = forced;
+        cs.stats.walk_margin = margin;
         cs.stats.build_seconds = start.elapsed().as_secs_f64();
         Ok(cs)
     }

@@ -807,6 +807,40 @@ fn inspect_prints_nodes_that_own_nothing() {
     assert!(rows.iter().all(|w| !w.contains(&"-0")), "{out}");
 }
 
+/// `inspect` says how far the walk's rounding grows every box, and hints
+/// where that blurs the subdivision: a ball on a ground reaching 1e20 is
+/// one front super cell (`docs/robustness.md`); the jagged ball is not
+/// hinted at.
+#[test]
+fn inspect_hints_where_the_walks_margin_blurs_the_subdivision() {
+    let tmp = tempfile::tempdir().unwrap();
+    let far = tmp.path().join("far_ground.ron");
+    std::fs::write(
+        &far,
+        "(camera: (eye: (1.6, -2.5, 1.3), look_at: (-2, 0.4, 0.8), fov_y: 50, width: 64, height: 48),
+          lights: [(position: (0, -3, 4))],
+          objects: [
+            Sphere(center: (0, 0.5, 0.6), radius: 0.6),
+            Box(min: (-1e20, -1e20, -1), max: (1e20, 1e20, 0)),
+          ])",
+    )
+    .unwrap();
+    let jagged = util::repo("scenes/jagged_ball.ron");
+    for (scene, hinted) in [(far.as_path(), true), (jagged.as_path(), false)] {
+        let o = run(tmp.path(), &["inspect", path_str(scene), "--dim", "1"]);
+        assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+        let out = String::from_utf8_lossy(&o.stdout).into_owned();
+        assert!(out.contains("walk margin"), "{out}");
+        let err = stderr(&o);
+        assert_eq!(
+            err.contains("grown by"),
+            hinted,
+            "{}: hint {hinted} expected\n{err}",
+            scene.display()
+        );
+    }
+}
+
 /// `inspect` (issue 3): the subdivision's counts, the share of every node
 /// against the replicated scene, the overlay at the image's size, and the
 /// same numbers in `--stats`; each node's share and work sum to the whole.
