@@ -822,7 +822,7 @@ fn a_ground_reaching_1e50_away_is_found_near_the_camera() {
 /// off along grazing rays (its vertices' depths, ±1e20, cancel), and its
 /// spawned rays started 1.4e6 above it: the shadow was gone. A polygon in
 /// a coordinate plane is now met as a box's face is
-/// (`shape::on_coordinate_plane`).
+/// (`shape::on_plane`).
 #[test]
 fn a_ground_polygon_reaching_1e50_away_shades_as_one_reaching_1e4() {
     for (kind, ground) in [
