@@ -770,7 +770,7 @@ fn coarse_margin_hint(scene: &Scene, margin: f64) -> Option<String> {
     let mut sizes: Vec<f64> = scene
         .primitives
         .iter()
-        .map(|p| (p.bounds.max - p.bounds.min).max_element())
+        .map(|p| p.bounds.largest_side())
         .filter(|s| s.is_finite() && *s > 0.0)
         .collect();
     if sizes.is_empty() {

@@ -58,6 +58,11 @@ impl Aabb {
         !(self.min.x <= self.max.x && self.min.y <= self.max.y && self.min.z <= self.max.z)
     }
 
+    /// The largest side: a primitive's size, on which its rounding scales.
+    pub fn largest_side(&self) -> f64 {
+        (self.max - self.min).max_element()
+    }
+
     pub fn from_points(points: impl IntoIterator<Item = Vec3>) -> Self {
         points.into_iter().fold(Aabb::EMPTY, |b, p| Aabb {
             min: b.min.min(p),

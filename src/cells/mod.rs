@@ -776,7 +776,7 @@ fn outside_the_solid(scene: &Scene, minimal: &[Aabb], p: crate::geom::Vec3) -> b
         return true;
     };
     let all = minimal.get(root.index()).copied().unwrap_or(Aabb::EMPTY);
-    let size = (all.max - all.min).max_element();
+    let size = all.largest_side();
     if !size.is_finite() || size <= 0.0 {
         return !all.inflated(1e-9).contains(p);
     }

@@ -75,11 +75,8 @@ impl Expansion {
     /// grown into `self` in place: no temporary expansion is made.
     pub fn add_product(&mut self, x: &Expansion, y: &Expansion, sign: f64) {
         for &b in &y.0 {
-            let b = b * sign;
             for &a in &x.0 {
-                let (p, e) = two_prod(a, b);
-                self.grow(e);
-                self.grow(p);
+                self.add_f64_product(a, b * sign);
             }
         }
     }
@@ -87,13 +84,12 @@ impl Expansion {
     /// Adds `x · b`, exactly.
     pub fn add_scaled(&mut self, x: &Expansion, b: f64) {
         for &a in &x.0 {
-            let (p, e) = two_prod(a, b);
-            self.grow(e);
-            self.grow(p);
+            self.add_f64_product(a, b);
         }
     }
 
     /// Adds `a · b` of two f64 values, exactly.
+    #[inline]
     pub fn add_f64_product(&mut self, a: f64, b: f64) {
         let (p, e) = two_prod(a, b);
         self.grow(e);

@@ -176,7 +176,7 @@ impl Primitive {
     /// ("A ground polygon reaching 1e20", "A tilted polygon reaching 1e20",
     /// "A sphere of radius 1e12 to 1e45 for a ground").
     pub fn rounding_size(&self, p: Vec3) -> f64 {
-        let extent = || (self.bounds.max - self.bounds.min).max_element();
+        let extent = || self.bounds.largest_side();
         match (&self.shape, &self.transform) {
             (Shape::Box { .. }, None) => 0.0,
             (shape, None) if shape.in_coordinate_plane() => 0.0,
@@ -327,7 +327,7 @@ impl Polygon {
             return Err(format!("a polygon may have at most {} vertices", u32::MAX));
         }
         let bbox = Aabb::from_points(vs.iter().copied());
-        let extent = (bbox.max - bbox.min).max_element();
+        let extent = bbox.largest_side();
         let centre = (bbox.min + bbox.max) * 0.5;
         let newell = newell_normal(&vs, centre);
         let twice_area = newell.length();
@@ -890,8 +890,7 @@ fn far_plane_t(ray: &Ray, vertices: &[Vec3], tri: [usize; 3], t_fan: f64) -> Opt
 /// world coordinates (`bake`).
 #[inline]
 fn planar_extent(vertices: &[Vec3]) -> f64 {
-    let b = Aabb::from_points(vertices.iter().copied());
-    (b.max - b.min).max_element()
+    Aabb::from_points(vertices.iter().copied()).largest_side()
 }
 
 /// `t` where the ray meets the plane through `tri`, from exact products
@@ -1006,7 +1005,7 @@ fn sphere_hits(ray: &Ray, center: Vec3, radius: f64) -> PrimHits {
     if let Roots::Two(t0, t1) = roots {
         let near = if t0.abs() <= t1.abs() { t0 } else { t1 };
         if 2.0 * radius > FAR_REACH * ray.at(near).abs().max_element() {
-            roots = far_sphere_roots(ray, center, radius);
+            roots = far_sphere_roots(ray, f, center, radius);
         }
     }
     match roots {
@@ -1019,9 +1018,9 @@ fn sphere_hits(ray: &Ray, center: Vec3, radius: f64) -> PrimHits {
 /// line: rare, and the common sphere test stays small.
 #[cold]
 #[inline(never)]
-fn far_sphere_roots(ray: &Ray, center: Vec3, radius: f64) -> Roots {
+fn far_sphere_roots(ray: &Ray, f: Vec3, center: Vec3, radius: f64) -> Roots {
     let c = exact_power(ray.origin, center, radius);
-    circle_roots_with(ray.origin - center, ray.dir, radius, c)
+    circle_roots_with(f, ray.dir, radius, c)
 }
 
 /// `|o − centre|² − r²`, the power of `o` with respect to the sphere,

@@ -1682,7 +1682,7 @@ fn rays_leaving_a_surface_to_the_allowed_side_never_meet_it_again() {
             assert!(p.left_behind(true));
             assert_eq!(p.left_behind(false), planar, "{p:?}");
             let centre = (p.bounds.min + p.bounds.max) * 0.5;
-            let size = (p.bounds.max - p.bounds.min).max_element();
+            let size = p.bounds.largest_side();
             for _ in 0..60 {
                 let from = centre + rng.vec(-1.0, 1.0).normalize_or(Vec3::X) * (4.0 * size);
                 let ray = Ray::new(from, centre + rng.vec(-0.3, 0.3) * size - from);

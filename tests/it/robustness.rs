@@ -825,11 +825,15 @@ fn a_ground_reaching_1e50_away_is_found_near_the_camera() {
 /// (`shape::on_plane`).
 #[test]
 fn a_ground_polygon_reaching_1e50_away_shades_as_one_reaching_1e4() {
+    let flat = |x: f64, y: f64| format!("({x:?}, {y:?}, 0)");
     for (kind, ground) in [
-        ("polygon", polygon_ground as fn(f64) -> String),
+        (
+            "polygon",
+            polygon_ground as fn(f64, &dyn Fn(f64, f64) -> String) -> String,
+        ),
         ("triangles", triangle_ground),
     ] {
-        let scene = |far: f64| far_ground_scene_with(&ground(far));
+        let scene = |far: f64| far_ground_scene_with(&ground(far, &flat));
         let (near, _) = assert_renders_equal(&scene(1e4), 64, 48);
         for far in [1e20, 1e30, 1e50] {
             let (film, _) = assert_renders_equal(&scene(far), 64, 48);
@@ -851,34 +855,15 @@ fn a_ground_polygon_reaching_1e50_away_shades_as_one_reaching_1e4() {
 /// (`csg::exact`), wherever its reach dwarfs the hit's distances.
 #[test]
 fn a_tilted_ground_polygon_reaching_1e50_away_shades_as_one_reaching_1e4() {
-    let at = |x: f64, y: f64| format!("({x:?}, {y:?}, {:?})", (x + y) / 64.0);
-    let polygon = |far: f64| {
-        let x = -far;
-        format!(
-            "Polygon(vertices: [{}, {}, {}, {}]),",
-            at(x, x),
-            at(4.0, x),
-            at(4.0, 4.0),
-            at(x, 4.0)
-        )
-    };
-    let triangles = |far: f64| {
-        let x = -far;
-        format!(
-            "Triangle(a: {}, b: {}, c: {}), Triangle(a: {}, b: {}, c: {}),",
-            at(x, x),
-            at(4.0, x),
-            at(4.0, 4.0),
-            at(x, x),
-            at(4.0, 4.0),
-            at(x, 4.0)
-        )
-    };
+    let tilted = |x: f64, y: f64| format!("({x:?}, {y:?}, {:?})", (x + y) / 64.0);
     for (kind, ground) in [
-        ("polygon", &polygon as &dyn Fn(f64) -> String),
-        ("triangles", &triangles),
+        (
+            "polygon",
+            polygon_ground as fn(f64, &dyn Fn(f64, f64) -> String) -> String,
+        ),
+        ("triangles", triangle_ground),
     ] {
-        let scene = |far: f64| far_ground_scene_with(&ground(far));
+        let scene = |far: f64| far_ground_scene_with(&ground(far, &tilted));
         let (near, _) = assert_renders_equal(&scene(1e4), 64, 48);
         for far in [1e20, 1e30, 1e50] {
             let (film, _) = assert_renders_equal(&scene(far), 64, 48);
@@ -968,18 +953,30 @@ fn a_sphere_ground_of_radius_1e45_shades_as_a_slab() {
     }
 }
 
-fn polygon_ground(far: f64) -> String {
+/// A square ground polygon from `(-far, -far)` to `(4, 4)`, each vertex
+/// written by `at(x, y)`.
+fn polygon_ground(far: f64, at: &dyn Fn(f64, f64) -> String) -> String {
+    let x = -far;
     format!(
-        "Polygon(vertices: [({x:?}, {x:?}, 0), (4, {x:?}, 0), (4, 4, 0), ({x:?}, 4, 0)]),",
-        x = -far
+        "Polygon(vertices: [{}, {}, {}, {}]),",
+        at(x, x),
+        at(4.0, x),
+        at(4.0, 4.0),
+        at(x, 4.0)
     )
 }
 
-fn triangle_ground(far: f64) -> String {
+/// The same ground as two triangles.
+fn triangle_ground(far: f64, at: &dyn Fn(f64, f64) -> String) -> String {
+    let x = -far;
     format!(
-        "Triangle(a: ({x:?}, {x:?}, 0), b: (4, {x:?}, 0), c: (4, 4, 0)),
-         Triangle(a: ({x:?}, {x:?}, 0), b: (4, 4, 0), c: ({x:?}, 4, 0)),",
-        x = -far
+        "Triangle(a: {}, b: {}, c: {}), Triangle(a: {}, b: {}, c: {}),",
+        at(x, x),
+        at(4.0, x),
+        at(4.0, 4.0),
+        at(x, x),
+        at(4.0, 4.0),
+        at(x, 4.0)
     )
 }
 
