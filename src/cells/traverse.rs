@@ -1351,12 +1351,7 @@ impl CellTracer<'_> {
                 } else {
                     return None;
                 };
-                Some(Hit {
-                    t: end.t,
-                    prim: end.prim,
-                    part: end.part,
-                    flip: end.flip,
-                })
+                Some(Hit::from(end))
             }
         }
     }
