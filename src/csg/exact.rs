@@ -7,8 +7,9 @@
 //! away) then comes out to within a few ulps of its true value.
 //!
 //! Used by `shape` for the plane of a planar primitive, and the power of a
-//! sphere, that reach far beyond their hits (`shape::on_plane`,
-//! `shape::sphere_hits`), a rare path. The components live inline up to
+//! sphere or of a cylinder's side, that reach far beyond their hits
+//! (`shape::on_plane`, `shape::sphere_hits`, `shape::far_cylinder_roots`),
+//! a rare path. The components live inline up to
 //! `INLINE` of them (the products there rarely need more), on the heap
 //! beyond. Owns these functions only; touches no other module.
 
@@ -96,6 +97,50 @@ impl Expansion {
         self.grow(p);
     }
 
+    /// The same value in as few components as Shewchuk's Compress leaves
+    /// (each at least twice the sum of those below it, so usually one or
+    /// two): products of compressed factors then take a handful of
+    /// partial products where the grown ones would take dozens.
+    ///
+    /// The first pass sums from the largest down, keeping a sum wherever
+    /// the next component's error does not vanish; the second sums those
+    /// from the smallest up, keeping each nonzero error. Exact: every step
+    /// is a two-sum.
+    pub fn compress(&mut self) {
+        let e = &self.0;
+        let m = e.len();
+        if m < 2 {
+            return;
+        }
+        let mut g: SmallVec<[f64; INLINE]> = SmallVec::from_elem(0.0, m);
+        let mut bottom = m - 1;
+        let mut q = e[m - 1];
+        for i in (0..m - 1).rev() {
+            let (s, err) = two_sum(q, e[i]);
+            if err != 0.0 {
+                g[bottom] = s;
+                bottom -= 1;
+                q = err;
+            } else {
+                q = s;
+            }
+        }
+        g[bottom] = q;
+        let mut h = SmallVec::new();
+        let mut q = g[bottom];
+        for &gi in &g[bottom + 1..] {
+            let (s, err) = two_sum(gi, q);
+            if err != 0.0 {
+                h.push(err);
+            }
+            q = s;
+        }
+        if q != 0.0 {
+            h.push(q);
+        }
+        self.0 = h;
+    }
+
     /// The value to within a few ulps: the components summed from the
     /// smallest, each below an ulp of the next. Zero only when the value
     /// is zero; not finite when a step overflowed.
@@ -168,6 +213,41 @@ mod tests {
             assert_eq!(got, want, "({a} − {b})·({c} − {d})");
             assert!(x.0.windows(2).all(|w| w[0].abs() < w[1].abs()));
             assert!(x.0.iter().all(|&v| v != 0.0));
+            // Compressed: the same value, no more components, still
+            // increasing and without zeros.
+            let mut y = x.clone();
+            y.compress();
+            let got: i128 = y.0.iter().map(|&v| dyadic(v, 8)).sum();
+            assert_eq!(got, want, "compressed ({a} − {b})·({c} − {d})");
+            assert!(y.0.len() <= x.0.len());
+            assert!(y.0.windows(2).all(|w| w[0].abs() < w[1].abs()));
+            assert!(y.0.iter().all(|&v| v != 0.0));
+            assert_eq!(y.estimate(), x.estimate());
         }
+    }
+
+    #[test]
+    fn compression_keeps_the_value_in_fewer_components() {
+        // 2^60 + 2^30 + 1 + 2^-30 grown from many small parts.
+        let mut e = Expansion::default();
+        for _ in 0..4 {
+            e.grow(2f64.powi(58));
+            e.grow(2f64.powi(28));
+            e.grow(0.25);
+            e.grow(2f64.powi(-32));
+        }
+        let before = e.estimate();
+        e.compress();
+        assert_eq!(e.estimate(), before);
+        let mut sum = 0.0;
+        for &c in &e.0 {
+            // Each at least twice the sum below it.
+            assert!(c.abs() >= 2.0 * sum, "{:?}", e.0);
+            sum += c.abs();
+        }
+        // Zero stays empty; a cancelled value becomes empty.
+        let mut z = Expansion::diff(1e20, 1e20);
+        z.compress();
+        assert!(z.0.is_empty());
     }
 }

@@ -161,8 +161,9 @@ impl Primitive {
     /// A triangle or polygon lying in a coordinate plane is met as a box's
     /// face is (`on_plane`): size 0 too; so is one reaching 2^21 times
     /// beyond the hit, met on its exact plane, and a sphere as large
-    /// against its hit, met with exact arithmetic (`sphere_hits`). A
-    /// cylinder or cone combines distances along and from its axis that
+    /// against its hit, met with exact arithmetic (`sphere_hits`), and the
+    /// side (`part`) of a cylinder as wide (`far_cylinder_roots`). A
+    /// cylinder or cone otherwise combines distances along and from its axis that
     /// the hit's distance from its base and its height bound
     /// (`axial_size`), which for a disc of radius 1e20 are far below its
     /// extent. Every other shape subtracts or combines magnitudes of its
@@ -172,10 +173,11 @@ impl Primitive {
     /// Before this, a ground box reaching 1e20 pushed every shadow ray from
     /// it 1.4e6 up, over whatever should have shadowed it
     /// (`docs/robustness.md`, "Spawned rays of a box reaching 1e20"), and
-    /// so did a ground polygon, tilted or not, and a sphere of radius 1e20
-    /// ("A ground polygon reaching 1e20", "A tilted polygon reaching 1e20",
-    /// "A sphere of radius 1e12 to 1e45 for a ground").
-    pub fn rounding_size(&self, p: Vec3) -> f64 {
+    /// so did a ground polygon, tilted or not, a sphere of radius 1e20 and
+    /// a lying drum as wide ("A ground polygon reaching 1e20", "A tilted
+    /// polygon reaching 1e20", "A sphere of radius 1e12 to 1e45 for a
+    /// ground", "A lying drum of radius 1e12 to 1e45").
+    pub fn rounding_size(&self, p: Vec3, part: u8) -> f64 {
         let extent = || self.bounds.largest_side();
         match (&self.shape, &self.transform) {
             (Shape::Box { .. }, None) => 0.0,
@@ -185,6 +187,18 @@ impl Primitive {
             // distance travelled.
             (Shape::Triangle { .. } | Shape::Polygon(_) | Shape::Sphere { .. }, None)
                 if extent() > 2.0 * FAR_REACH * p.abs().max_element() =>
+            {
+                0.0
+            }
+            // A cylinder's side as wide against its hit: met with the
+            // exact power too (`far_cylinder_roots`). Its caps keep their
+            // size below, as a tilted cap far from its base is met through
+            // the rounded axis.
+            (shape, None)
+                if part == SIDE
+                    && shape
+                        .cylinder_radius()
+                        .is_some_and(|r| r > FAR_REACH * p.abs().max_element()) =>
             {
                 0.0
             }
@@ -783,6 +797,20 @@ fn intersect_shape(shape: &Shape, ray: &Ray) -> PrimHits {
 }
 
 impl Shape {
+    /// The radius of a cylinder, or of a cone whose radii are equal (met
+    /// as a cylinder, `intersect_shape`).
+    fn cylinder_radius(&self) -> Option<f64> {
+        match *self {
+            Shape::Cylinder { radius, .. } => Some(radius),
+            Shape::Cone {
+                base_radius,
+                top_radius,
+                ..
+            } if base_radius == top_radius => Some(base_radius),
+            _ => None,
+        }
+    }
+
     /// Whether this is a triangle or polygon lying in a coordinate plane,
     /// whose hits are met as a box's face is (`on_plane`).
     fn in_coordinate_plane(&self) -> bool {
@@ -804,9 +832,10 @@ fn coordinate_plane(vertices: &[Vec3]) -> Option<(usize, f64)> {
         .map(|k| (k, first[k]))
 }
 
-/// How far a planar primitive or a sphere must reach beyond its hit (its
-/// extent against the hit point's largest coordinate) for the hit to be
-/// taken from exact arithmetic (`on_plane`, `sphere_hits`);
+/// How far a planar primitive, a sphere or a cylinder must reach beyond
+/// its hit (its extent, or diameter, against the hit point's largest
+/// coordinate) for the hit to be taken from exact arithmetic (`on_plane`,
+/// `sphere_hits`, `cylinder_hits`);
 /// `Primitive::rounding_size` asks for twice this, so that it counts a hit
 /// as exact only where the intersection surely made it so (the f64 point
 /// it decided by is off by far less than `|p|` there).
@@ -1002,11 +1031,10 @@ fn circle_roots_with(f: Vec3, d: Vec3, r: f64, c: f64) -> Roots {
 fn sphere_hits(ray: &Ray, center: Vec3, radius: f64) -> PrimHits {
     let f = ray.origin - center;
     let mut roots = circle_roots(f, ray.dir, radius);
-    if let Roots::Two(t0, t1) = roots {
-        let near = if t0.abs() <= t1.abs() { t0 } else { t1 };
-        if 2.0 * radius > FAR_REACH * ray.at(near).abs().max_element() {
-            roots = far_sphere_roots(ray, f, center, radius);
-        }
+    if let Roots::Two(t0, t1) = roots
+        && reaches_far(radius, ray, t0, t1)
+    {
+        roots = far_sphere_roots(ray, f, center, radius);
     }
     match roots {
         Roots::Two(t0, t1) => solid(crossing(t0, 0), crossing(t1, 0)),
@@ -1023,13 +1051,81 @@ fn far_sphere_roots(ray: &Ray, f: Vec3, center: Vec3, radius: f64) -> Roots {
     circle_roots_with(f, ray.dir, radius, c)
 }
 
+/// Whether a round surface of `radius` reaches `FAR_REACH` times beyond
+/// either of its hits at `t0`, `t1` (its diameter against the hit point's
+/// largest coordinate): where its power, and so the hit, cancels in f64.
+/// Both hits are asked, as either may be the one shaded
+/// (`Primitive::rounding_size` counts it exact).
+#[inline]
+fn reaches_far(radius: f64, ray: &Ray, t0: f64, t1: f64) -> bool {
+    let nearest = ray
+        .at(t0)
+        .abs()
+        .max_element()
+        .min(ray.at(t1).abs().max_element());
+    2.0 * radius > FAR_REACH * nearest
+}
+
+/// `cylinder_hits`' side roots with the power of the ray's origin,
+/// `|f⊥|² − r²`, evaluated exactly from the file's own numbers: with
+/// `f = o − base` and `A = top − base`, `|f⊥|² = |f × A|² / |A|²`, so the
+/// power is `(|f × A|² − r²·|A|²) / |A|²`, its numerator exact and
+/// rounded once, divided once. The unit axis `a` that `f⊥` was taken with
+/// is rounded, which moves `f⊥` by ε·|f|, as much as the cancellation
+/// itself; this form never uses it. Out of line, as `far_sphere_roots`.
+#[cold]
+#[inline(never)]
+fn far_cylinder_roots(
+    ray: &Ray,
+    f_perp: Vec3,
+    d_perp: Vec3,
+    (base, top): (Vec3, Vec3),
+    radius: f64,
+) -> Roots {
+    use super::exact::Expansion;
+    let along = (top - base).cmpne(Vec3::ZERO).bitmask();
+    if along.count_ones() == 1 {
+        // Along a coordinate axis (a drum lying along x or y): `f⊥` is `f`
+        // on the other two axes, and the power is the sphere's there.
+        let c = exact_power_on(ray.origin, base, radius, !along);
+        return circle_roots_with(f_perp, d_perp, radius, c);
+    }
+    let f: [Expansion; 3] = std::array::from_fn(|k| Expansion::diff(ray.origin[k], base[k]));
+    let axis: [Expansion; 3] = std::array::from_fn(|k| Expansion::diff(top[k], base[k]));
+    let mut numerator = Expansion::default();
+    let mut axis2 = Expansion::default();
+    for k in 0..3 {
+        let (i, j) = ((k + 1) % 3, (k + 2) % 3);
+        // (f × A)_k = f_i·A_j − f_j·A_i.
+        let mut cross = Expansion::default();
+        cross.add_product(&f[i], &axis[j], 1.0);
+        cross.add_product(&f[j], &axis[i], -1.0);
+        cross.compress();
+        numerator.add_product(&cross, &cross, 1.0);
+        axis2.add_product(&axis[k], &axis[k], 1.0);
+    }
+    axis2.compress();
+    let mut r_axis2 = Expansion::default();
+    r_axis2.add_scaled(&axis2, radius);
+    numerator.add_scaled(&r_axis2, -radius);
+    let c = numerator.estimate() / axis2.estimate();
+    circle_roots_with(f_perp, d_perp, radius, c)
+}
+
 /// `|o − centre|² − r²`, the power of `o` with respect to the sphere,
 /// evaluated exactly and rounded once (see `sphere_hits`).
 fn exact_power(o: Vec3, center: Vec3, r: f64) -> f64 {
+    exact_power_on(o, center, r, 0b111)
+}
+
+/// `exact_power` over the axes whose bits are set in `axes` (bit `k` for
+/// axis `k`): a cylinder along a coordinate axis has the power of a circle
+/// in the other two.
+fn exact_power_on(o: Vec3, center: Vec3, r: f64, axes: u32) -> f64 {
     use super::exact::Expansion;
     let mut power = Expansion::default();
     power.add_f64_product(r, -r);
-    for k in 0..3 {
+    for k in (0..3).filter(|k| axes & (1 << k) != 0) {
         let f = Expansion::diff(o[k], center[k]);
         power.add_product(&f, &f, 1.0);
     }
@@ -1179,6 +1275,11 @@ fn side_and_caps(
 /// components perpendicular to the axis, so `a = 0` (a ray parallel to the
 /// axis, case 3) is handled there and a nearly parallel ray gives huge
 /// roots that the caps clip: the span is continuous in the direction.
+///
+/// Where the cylinder is so wide that it reaches far beyond the hit
+/// nearer the ray's origin (a lying drum of radius 1e20 for a ground), the
+/// roots are taken again with the power `|f⊥|² − r²` exact, as a
+/// sphere's are (`sphere_hits`, `far_cylinder_roots`).
 fn cylinder_hits(ray: &Ray, base: Vec3, top: Vec3, radius: f64, capped: bool) -> PrimHits {
     let Some((a, _)) = unit_axis(base, top) else {
         return PrimHits::Miss;
@@ -1189,7 +1290,13 @@ fn cylinder_hits(ray: &Ray, base: Vec3, top: Vec3, radius: f64, capped: bool) ->
     let f = ray.origin - base;
     let f_perp = f - a * f.dot(a);
     let d_perp = ray.dir - a * ray.dir.dot(a);
-    let side = match circle_roots(f_perp, d_perp, radius) {
+    let mut roots = circle_roots(f_perp, d_perp, radius);
+    if let Roots::Two(t0, t1) = roots
+        && reaches_far(radius, ray, t0, t1)
+    {
+        roots = far_cylinder_roots(ray, f_perp, d_perp, (base, top), radius);
+    }
+    let side = match roots {
         Roots::None => return PrimHits::Miss,
         Roots::All => (
             crossing(f64::NEG_INFINITY, SIDE),

@@ -970,12 +970,48 @@ fn a_tilted_triangle_reaching_far_is_met_on_its_exact_plane() {
             let cs = crossings(&hits(&tri, o, d));
             assert_eq!(cs.len(), 1, "reaching {far:e}: {o} + t·{d} misses");
             assert_close(cs[0].t, want, 1e-14);
-            assert_eq!(tri.rounding_size(o + d * want), 0.0);
+            assert_eq!(tri.rounding_size(o + d * want, 0), 0.0);
         }
     }
     // Near its own vertices it keeps the triangle test and its size.
     let tri = triangle(on(-1e20, -1e20), on(1e20, -1e20), on(0.0, 1e20));
-    assert!(tri.rounding_size(on(-1e20, -1e20)) > 1e20);
+    assert!(tri.rounding_size(on(-1e20, -1e20), 0) > 1e20);
+}
+
+/// A lying drum of radius 1e20 to 1e45 along a tilted horizontal axis, its
+/// top along a line through the origin at `z = 0`, met near the origin:
+/// `t` as the plane `z = 0` gives it (the drum is flat there to 1e-19), to
+/// 1e-14, and its spawned rays offset by no size. The f64 power `|f⊥|² −
+/// r²` was some ε·r² off, the hit ε·r (`shape::far_cylinder_roots`).
+#[test]
+fn a_drum_reaching_far_is_met_on_its_exact_surface() {
+    let mut state = 11u64;
+    let mut unit = || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    for far in [1e20, 1e30, 1e45] {
+        let drum = cylinder(
+            v(-far, -2.0 * far, -far),
+            v(far, 2.0 * far, -far),
+            far,
+            true,
+        );
+        for _ in 0..200 {
+            let o = v(unit() * 4.0 - 2.0, unit() * 4.0 - 2.0, 1.0 + unit() * 3.0);
+            let d = v(unit() - 0.5, unit() - 0.5, -0.2 - unit());
+            let want = -o.z / d.z;
+            let cs = crossings(&hits(&drum, o, d));
+            assert_eq!(cs.len(), 2, "radius {far:e}: {o} + t·{d}");
+            assert_close(cs[0].t, want, 1e-14);
+            assert_eq!(drum.rounding_size(o + d * want, cs[0].part), 0.0);
+        }
+    }
+    // On its far side, as wide as its hit is far, it keeps its size.
+    let drum = cylinder(v(0.0, -1e20, -1e20), v(0.0, 1e20, -1e20), 1e20, true);
+    assert!(drum.rounding_size(v(0.0, 0.0, -2e20), 0) > 1e20);
 }
 
 /// The 12 triangles of the cube [0,1]³, outward-facing, with the diagonals
@@ -1694,8 +1730,13 @@ fn rays_leaving_a_surface_to_the_allowed_side_never_meet_it_again() {
                         if !p.left_behind(side == n) {
                             continue;
                         }
-                        let o =
-                            crate::trace::offset_origin(&ray, c.t, at, side, p.rounding_size(at));
+                        let o = crate::trace::offset_origin(
+                            &ray,
+                            c.t,
+                            at,
+                            side,
+                            p.rounding_size(at, c.part),
+                        );
                         for _ in 0..40 {
                             let mut d = rng.vec(-1.0, 1.0).normalize_or(side);
                             if d.dot(side) < 0.0 {

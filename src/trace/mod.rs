@@ -247,7 +247,7 @@ impl<'a> Shader<'a> {
         let entering = d.dot(n) <= 0.0;
         // The normal on the side the ray arrives from.
         let nf = if entering { n } else { -n };
-        let extent = prim.rounding_size(p);
+        let extent = prim.rounding_size(p, hit.part);
         // Whether `nf` is the primitive's own outward normal (it is the
         // solid's, which is the other way round on a subtracted surface).
         let outward = entering != hit.flip;

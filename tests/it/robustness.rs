@@ -953,6 +953,45 @@ fn a_sphere_ground_of_radius_1e45_shades_as_a_slab() {
     }
 }
 
+/// A lying drum of radius 1e12 to 1e45 for a ground, its top along a line
+/// through the origin at `z = 0`: a cylinder along y, one along a tilted
+/// horizontal axis, open or capped, and a cone of equal radii (NFF's open
+/// cylinder). Each shades as a slab, every pixel, as the sphere does
+/// (`csg::shape::far_cylinder_roots`). Before, its side's power cancelled
+/// as the sphere's did and its spawned rays were offset by its extent:
+/// along y with caps at ±6, a third of the pixels differed at 1e12 and
+/// 62.5% from 1e20 on; the cone of equal radii, met as a cylinder but
+/// offset as a cone, still 3.8% once the cylinder was fixed.
+#[test]
+fn a_cylinder_ground_of_radius_1e45_shades_as_a_slab() {
+    for far in [1e12, 1e16, 1e20, 1e30, 1e45] {
+        let slab = format!(
+            "Box(min: ({x:?}, {x:?}, -0.5), max: ({far:?}, {far:?}, 0)),",
+            x = -far
+        );
+        let (want, _) = assert_renders_equal(&far_ground_scene_with(&slab), 64, 48);
+        let x = -far;
+        let drums = [
+            format!(
+                "Cylinder(base: (0, {x:?}, {x:?}), top: (0, {far:?}, {x:?}), radius: {far:?}),"
+            ),
+            format!(
+                "Cylinder(base: ({x:?}, {:?}, {x:?}), top: ({far:?}, {:?}, {x:?}), radius: {far:?}, capped: false),",
+                2.0 * x,
+                2.0 * far
+            ),
+            format!(
+                "Cone(base: (0, {x:?}, {x:?}), base_radius: {far:?}, top: (0, {far:?}, {x:?}), top_radius: {far:?}),"
+            ),
+        ];
+        for drum in &drums {
+            let (got, _) = assert_renders_equal(&far_ground_scene_with(drum), 64, 48);
+            let bad = fraction_differing(&got, &want, 1e-6);
+            assert!(bad == 0.0, "{drum}: {bad} of pixels differ from the slab");
+        }
+    }
+}
+
 /// A square ground polygon from `(-far, -far)` to `(4, 4)`, each vertex
 /// written by `at(x, y)`.
 fn polygon_ground(far: f64, at: &dyn Fn(f64, f64) -> String) -> String {
@@ -1361,8 +1400,8 @@ fn case_24_spawned_rays_never_hit_the_surface_they_leave() {
             let p = ray.at(hit.t);
             let n = prim.normal(&ray, hit.t, hit.part);
             assert!(hit.t.is_finite() && n.is_finite(), "{hit:?} {n}");
-            let out = offset_origin(&ray, hit.t, p, n, prim.rounding_size(p));
-            let inside = offset_origin(&ray, hit.t, p, -n, prim.rounding_size(p));
+            let out = offset_origin(&ray, hit.t, p, n, prim.rounding_size(p, hit.part));
+            let inside = offset_origin(&ray, hit.t, p, -n, prim.rounding_size(p, hit.part));
             for _ in 0..1000 {
                 let d = rng.direction();
                 let (o, d) = if d.dot(n) > 0.0 { (out, d) } else { (out, -d) };
@@ -1419,12 +1458,13 @@ fn case_24_spawned_rays_never_hit_the_surface_they_leave() {
 /// `ray` (normal `n`), offset to each side of the surface as the shader
 /// offsets them, the primitive not left out; returns how many it spawned
 /// and how many met a surface within 1e-9 of the size of `prim` (the
-/// primitive hit, whose `rounding_size` the offset takes) of their start.
+/// primitive hit on `part`, whose `rounding_size` the offset takes) of
+/// their start.
 fn spawn_around(
     roth: &mut RothTracer,
     prim: &Primitive,
     ray: &Ray,
-    t: f64,
+    (t, part): (f64, u8),
     n: Vec3,
     per_side: usize,
     rng: &mut Rng,
@@ -1433,7 +1473,7 @@ fn spawn_around(
     let size = (prim.bounds.max - prim.bounds.min).max_element();
     roth.leaving(None);
     for side in [n, -n] {
-        let o = offset_origin(ray, t, ray.at(t), side, prim.rounding_size(ray.at(t)));
+        let o = offset_origin(ray, t, ray.at(t), side, prim.rounding_size(ray.at(t), part));
         for _ in 0..per_side {
             let mut d = rng.direction();
             if d.dot(side) < 0.0 {
@@ -1531,7 +1571,8 @@ fn case_24_spawned_rays_miss_the_surface_they_leave_on_every_shape() {
                     continue;
                 };
                 let n = prim.normal(&ray, hit.t, hit.part);
-                let (made, met) = spawn_around(&mut roth, prim, &ray, hit.t, n, 50, &mut rng);
+                let (made, met) =
+                    spawn_around(&mut roth, prim, &ray, (hit.t, hit.part), n, 50, &mut rng);
                 (spawned, self_hits) = (spawned + made, self_hits + met);
             }
         }
@@ -1597,7 +1638,8 @@ fn case_24_rays_leaving_a_thin_cone_never_meet_it_at_their_start() {
             // out: the first crossing ahead is the far side, never the
             // point they start at.
             let n = prim.normal(&job.ray, hit.t, hit.part);
-            let (made, met) = spawn_around(&mut roth, prim, &job.ray, hit.t, n, 4, &mut rng);
+            let (made, met) =
+                spawn_around(&mut roth, prim, &job.ray, (hit.t, hit.part), n, 4, &mut rng);
             (spawned, self_hits) = (spawned + made, self_hits + met);
             // The shader's shadow rays, the spike left out.
             let mut jobs = Vec::new();
