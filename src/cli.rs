@@ -623,6 +623,13 @@ fn run_render(a: RenderArgs) -> Result<()> {
                 eprintln!("hypercast: hint: {hint}");
             }
         }
+        if let Some(hint) = out
+            .cells
+            .as_ref()
+            .and_then(|cs| coarse_margin_hint(&job.scene, cs.stats.walk_margin))
+        {
+            eprintln!("hypercast: hint: {hint}");
+        }
     }
     if let Some(m) = metrics {
         // Error beside run time, always printed when asked for.
@@ -782,7 +789,7 @@ fn coarse_margin_hint(scene: &Scene, margin: f64) -> Option<String> {
         format!(
             "every box is grown by {margin:.2e} for the walk's rounding, against a median primitive of size \
              {median:.2e}: the scene reaches so far beyond its detail that the subdivision splits little, and rays \
-             test more (exact all the same; docs/robustness.md, \"A sphere of radius 1e12 to 1e45 for a ground\")"
+             test more (exact all the same; docs/robustness.md, \"Scenes reaching 1e13 beyond their detail\")"
         )
     })
 }

@@ -812,7 +812,7 @@ fn inspect_prints_nodes_that_own_nothing() {
 /// one front super cell (`docs/robustness.md`); the jagged ball is not
 /// hinted at.
 #[test]
-fn inspect_hints_where_the_walks_margin_blurs_the_subdivision() {
+fn inspect_and_render_hint_where_the_walks_margin_blurs_the_subdivision() {
     let tmp = tempfile::tempdir().unwrap();
     let far = tmp.path().join("far_ground.ron");
     std::fs::write(
@@ -838,6 +838,28 @@ fn inspect_hints_where_the_walks_margin_blurs_the_subdivision() {
             "{}: hint {hinted} expected\n{err}",
             scene.display()
         );
+        // `render` says so too, on two nodes and on the default 32.
+        for args in [&["--dim", "1"][..], &[][..]] {
+            let mut argv = vec![
+                "render",
+                path_str(scene),
+                "-o",
+                "out.png",
+                "--width",
+                "32",
+                "--height",
+                "24",
+            ];
+            argv.extend_from_slice(args);
+            let o = run(tmp.path(), &argv);
+            assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+            let err = stderr(&o);
+            assert_eq!(
+                err.contains("grown by"),
+                hinted,
+                "{argv:?}: hint {hinted} expected\n{err}"
+            );
+        }
     }
 }
 
