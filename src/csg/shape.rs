@@ -162,7 +162,8 @@ impl Primitive {
     /// face is (`on_plane`): size 0 too; so is one reaching 2^21 times
     /// beyond the hit, met on its exact plane, and a sphere as large
     /// against its hit, met with exact arithmetic (`sphere_hits`), and the
-    /// side (`part`) of a cylinder as wide (`far_cylinder_roots`). A
+    /// side (`part`) of a cylinder or cone as wide (`far_cylinder_roots`,
+    /// `far_cone_roots`). A
     /// cylinder or cone otherwise combines distances along and from its axis that
     /// the hit's distance from its base and its height bound
     /// (`axial_size`), which for a disc of radius 1e20 are far below its
@@ -176,7 +177,8 @@ impl Primitive {
     /// so did a ground polygon, tilted or not, a sphere of radius 1e20 and
     /// a lying drum as wide ("A ground polygon reaching 1e20", "A tilted
     /// polygon reaching 1e20", "A sphere of radius 1e12 to 1e45 for a
-    /// ground", "A lying drum of radius 1e12 to 1e45").
+    /// ground", "A lying drum of radius 1e12 to 1e45 for a ground", "A
+    /// cone of radius 1e12 to 1e45 for a ground").
     pub fn rounding_size(&self, p: Vec3, part: u8) -> f64 {
         let extent = || self.bounds.largest_side();
         match (&self.shape, &self.transform) {
@@ -190,14 +192,14 @@ impl Primitive {
             {
                 0.0
             }
-            // A cylinder's side as wide against its hit: met with the
-            // exact power too (`far_cylinder_roots`). Its caps keep their
-            // size below, as a tilted cap far from its base is met through
-            // the rounded axis.
+            // A cylinder's or cone's side as wide against its hit: met
+            // with the exact power too (`far_cylinder_roots`,
+            // `far_cone_roots`). Its caps keep their size below, as a
+            // tilted cap far from its base is met through the rounded axis.
             (shape, None)
                 if part == SIDE
                     && shape
-                        .cylinder_radius()
+                        .side_radius()
                         .is_some_and(|r| r > FAR_REACH * p.abs().max_element()) =>
             {
                 0.0
@@ -797,16 +799,16 @@ fn intersect_shape(shape: &Shape, ray: &Ray) -> PrimHits {
 }
 
 impl Shape {
-    /// The radius of a cylinder, or of a cone whose radii are equal (met
-    /// as a cylinder, `intersect_shape`).
-    fn cylinder_radius(&self) -> Option<f64> {
+    /// The radius of a cylinder, or the larger of a cone's: how far its
+    /// side's power reaches (`reaches_far`).
+    fn side_radius(&self) -> Option<f64> {
         match *self {
             Shape::Cylinder { radius, .. } => Some(radius),
             Shape::Cone {
                 base_radius,
                 top_radius,
                 ..
-            } if base_radius == top_radius => Some(base_radius),
+            } => Some(base_radius.max(top_radius)),
             _ => None,
         }
     }
@@ -832,10 +834,10 @@ fn coordinate_plane(vertices: &[Vec3]) -> Option<(usize, f64)> {
         .map(|k| (k, first[k]))
 }
 
-/// How far a planar primitive, a sphere or a cylinder must reach beyond
-/// its hit (its extent, or diameter, against the hit point's largest
-/// coordinate) for the hit to be taken from exact arithmetic (`on_plane`,
-/// `sphere_hits`, `cylinder_hits`);
+/// How far a planar primitive, a sphere, a cylinder or a cone must reach
+/// beyond its hit (its extent, or diameter, against the hit point's
+/// largest coordinate) for the hit to be taken from exact arithmetic
+/// (`on_plane`, `sphere_hits`, `cylinder_hits`, `far_cone_roots`);
 /// `Primitive::rounding_size` asks for twice this, so that it counts a hit
 /// as exact only where the intersection surely made it so (the f64 point
 /// it decided by is off by far less than `|p|` there).
@@ -1056,14 +1058,13 @@ fn far_sphere_roots(ray: &Ray, f: Vec3, center: Vec3, radius: f64) -> Roots {
 /// largest coordinate): where its power, and so the hit, cancels in f64.
 /// Both hits are asked, as either may be the one shaded
 /// (`Primitive::rounding_size` counts it exact).
+/// (Axis by axis, so that the common answer, no, is found at the first
+/// coordinate of each hit: every sphere and cone test asks.)
 #[inline]
 fn reaches_far(radius: f64, ray: &Ray, t0: f64, t1: f64) -> bool {
-    let nearest = ray
-        .at(t0)
-        .abs()
-        .max_element()
-        .min(ray.at(t1).abs().max_element());
-    2.0 * radius > FAR_REACH * nearest
+    let s = radius * (2.0 / FAR_REACH);
+    let near = |t: f64| (0..3).all(|k| (ray.origin[k] + ray.dir[k] * t).abs() < s);
+    near(t0) || near(t1)
 }
 
 /// `cylinder_hits`' side roots with the power of the ray's origin,
@@ -1397,7 +1398,9 @@ impl ConeScale {
 /// apex) is rejected by that sign, not by the slab alone (case 6). `A < 0`
 /// (steeper than the surface) is inside outside the roots, one piece per
 /// nappe; `A = 0` (parallel to a generator, case 6) is linear with no
-/// division by `A`; a double root with `A < 0` is the apex (part 3).
+/// division by `A`; a double root with `A < 0` is the apex (part 3). A
+/// cone that reaches far beyond its hits has its roots taken again with
+/// `C` exact (`far_cone_roots`).
 fn cone_hits(ray: &Ray, base: Vec3, rb: f64, top: Vec3, rt: f64, capped: bool) -> PrimHits {
     let Some((a, len)) = unit_axis(base, top) else {
         return PrimHits::Miss;
@@ -1446,6 +1449,7 @@ fn cone_hits(ray: &Ray, base: Vec3, rb: f64, top: Vec3, rt: f64, capped: bool) -
             return PrimHits::Miss;
         }
         let (t0, t1) = cone_roots((f, d, a, d_perp), (sc, m), (qa, qb, qc, disc));
+        let (t0, t1) = far_cone_roots(ray, (base, rb, top, rt), sc, (qa, qb, disc), (t0, t1));
         // In exact arithmetic the slab already excludes the mirror nappe;
         // this keeps rounding near a pointed end from admitting it.
         let mid = 0.5 * t0 + 0.5 * t1;
@@ -1459,6 +1463,7 @@ fn cone_hits(ray: &Ray, base: Vec3, rb: f64, top: Vec3, rt: f64, capped: bool) -
         let disc = cone_discriminant(f_perp, d_perp, g, m);
         if disc > 0.0 {
             let (t0, t1) = cone_roots((f, d, a, d_perp), (sc, m), (qa, qb, qc, disc));
+            let (t0, t1) = far_cone_roots(ray, (base, rb, top, rt), sc, (qa, qb, disc), (t0, t1));
             if m > 0.0 {
                 (crossing(t1, SIDE), above)
             } else {
@@ -1473,6 +1478,77 @@ fn cone_hits(ray: &Ray, base: Vec3, rb: f64, top: Vec3, rt: f64, capped: bool) -
         return PrimHits::Miss; // NaN
     };
     side_and_caps(side, slab, capped, rb == 0.0 || rt == 0.0)
+}
+
+/// A cone's roots `(t0, t1)` again, with the quadric's constant term `C`
+/// exact, where the cone is so wide that it reaches `FAR_REACH` times
+/// beyond either hit (a mountain or a funnel for a ground): `C` is the
+/// difference of two squares of the radius's size, off by ε·r² in f64,
+/// and the root `C/q` by ε·r, as a sphere's (`sphere_hits`). From the
+/// file's own numbers, with `f = o − base`, `A = top − base` and
+/// `D = rt − rb`: `|f⊥|² = |f × A|²/|A|²` and the radius at the origin's
+/// axial place is `g = (rb·|A|² + D·(f·A))/|A|²`, so
+/// `C = (|f × A|²·|A|² − (rb·|A|² + D·(f·A))²) / |A|⁴`, its numerator
+/// exact and rounded once (`exact`), then scaled as the quadric is
+/// (`ConeScale`). The roots are then `quadratic_roots` of that `C`, the
+/// refinement of `cone_roots` (whose constant term at a root cancels as
+/// this one did) left out. Otherwise, or where the exact terms overflow,
+/// the roots given.
+#[inline]
+fn far_cone_roots(
+    ray: &Ray,
+    cone: (Vec3, f64, Vec3, f64),
+    sc: ConeScale,
+    quadratic: (f64, f64, f64),
+    (t0, t1): (f64, f64),
+) -> (f64, f64) {
+    let (_, rb, _, rt) = cone;
+    if reaches_far(rb.max(rt), ray, t0, t1) {
+        exact_cone_roots(ray, cone, sc, quadratic).unwrap_or((t0, t1))
+    } else {
+        (t0, t1)
+    }
+}
+
+/// `far_cone_roots`' exact path. Out of line, as `far_sphere_roots`.
+#[cold]
+#[inline(never)]
+fn exact_cone_roots(
+    ray: &Ray,
+    (base, rb, top, rt): (Vec3, f64, Vec3, f64),
+    sc: ConeScale,
+    (qa, qb, disc): (f64, f64, f64),
+) -> Option<(f64, f64)> {
+    use super::exact::Expansion;
+    let f: [Expansion; 3] = std::array::from_fn(|k| Expansion::diff(ray.origin[k], base[k]));
+    let axis: [Expansion; 3] = std::array::from_fn(|k| Expansion::diff(top[k], base[k]));
+    let mut cross2 = Expansion::default();
+    let mut axis2 = Expansion::default();
+    let mut fa = Expansion::default();
+    for k in 0..3 {
+        let (i, j) = ((k + 1) % 3, (k + 2) % 3);
+        let mut cross = Expansion::default();
+        cross.add_product(&f[i], &axis[j], 1.0);
+        cross.add_product(&f[j], &axis[i], -1.0);
+        cross.compress();
+        cross2.add_product(&cross, &cross, 1.0);
+        axis2.add_product(&axis[k], &axis[k], 1.0);
+        fa.add_product(&f[k], &axis[k], 1.0);
+    }
+    cross2.compress();
+    axis2.compress();
+    fa.compress();
+    // g·|A|² = rb·|A|² + D·(f·A).
+    let mut g = Expansion::default();
+    g.add_scaled(&axis2, rb);
+    g.add_product(&Expansion::diff(rt, rb), &fa, 1.0);
+    g.compress();
+    let mut numerator = Expansion::default();
+    numerator.add_product(&cross2, &axis2, 1.0);
+    numerator.add_product(&g, &g, -1.0);
+    let a2 = axis2.estimate();
+    let c = numerator.estimate() / (a2 * a2) * (sc.perp * sc.perp);
+    c.is_finite().then(|| quadratic_roots(qa, qb, c, disc))
 }
 
 /// `B² − A·C` of the cone's quadratic (`cone_hits`), as

@@ -982,9 +982,10 @@ fn a_tilted_triangle_reaching_far_is_met_on_its_exact_plane() {
 /// top along a line through the origin at `z = 0`, met near the origin:
 /// `t` as the plane `z = 0` gives it (the drum is flat there to 1e-19), to
 /// 1e-14, and its spawned rays offset by no size. The f64 power `|f⊥|² −
-/// r²` was some ε·r² off, the hit ε·r (`shape::far_cylinder_roots`).
+/// r²` was some ε·r² off, the hit ε·r (`shape::far_cylinder_roots`). The
+/// same of a lying cone as wide (`shape::far_cone_roots`).
 #[test]
-fn a_drum_reaching_far_is_met_on_its_exact_surface() {
+fn a_drum_or_cone_reaching_far_is_met_on_its_exact_surface() {
     let mut state = 11u64;
     let mut unit = || {
         state = state
@@ -1007,6 +1008,26 @@ fn a_drum_reaching_far_is_met_on_its_exact_surface() {
             assert_eq!(cs.len(), 2, "radius {far:e}: {o} + t·{d}");
             assert_close(cs[0].t, want, 1e-14);
             assert_eq!(drum.rounding_size(o + d * want, cs[0].part), 0.0);
+        }
+    }
+    // So is a cone lying along y, its radius growing by 1/64 a unit, its
+    // top generator on the plane z = y/64 (`shape::far_cone_roots`).
+    for far in [1e20, 1e30, 1e45] {
+        let cone = cone(
+            v(0.0, -far, -far),
+            far * 63.0 / 64.0,
+            v(0.0, far, -far),
+            far * 65.0 / 64.0,
+            true,
+        );
+        for _ in 0..200 {
+            let o = v(unit() * 4.0 - 2.0, unit() * 4.0 - 2.0, 1.0 + unit() * 3.0);
+            let d = v(unit() - 0.5, unit() - 0.5, -0.2 - unit());
+            let want = (o.y - 64.0 * o.z) / (64.0 * d.z - d.y);
+            let cs = crossings(&hits(&cone, o, d));
+            assert_eq!(cs.len(), 2, "radius {far:e}: {o} + t·{d}");
+            assert_close(cs[0].t, want, 1e-14);
+            assert_eq!(cone.rounding_size(o + d * want, cs[0].part), 0.0);
         }
     }
     // On its far side, as wide as its hit is far, it keeps its size.

@@ -1044,12 +1044,13 @@ fn compare_with_roth(
 /// Random scene `ron` (as `lit_random_scene` writes it) on a ground
 /// reaching far beyond it, met by exact arithmetic: by `seed`, a sphere of
 /// radius 1e15 whose top is at `y = −8`, a polygon reaching 1e20 tilted
-/// out of every coordinate plane, or a drum of radius 1e15 lying along a
-/// tilted horizontal axis, its top at `y = −8`.
+/// out of every coordinate plane, or a drum of radius 1e15 or a cone (its
+/// radius 1e15 at the middle) lying along a tilted horizontal axis, its
+/// top at `y = −8` there.
 pub(crate) fn on_far_ground(ron: &str, seed: u64) -> String {
     let far = 1e20f64;
     let tilted = |x: f64, z: f64| format!("({x:?}, {:?}, {z:?})", -8.0 + (x - z) / 64.0);
-    let ground = match seed % 3 {
+    let ground = match seed % 4 {
         0 => "Sphere(center: (0, -1000000000000008.0, 0), radius: 1e15)".to_string(),
         1 => format!(
             "Polygon(vertices: [{}, {}, {}])",
@@ -1058,8 +1059,12 @@ pub(crate) fn on_far_ground(ron: &str, seed: u64) -> String {
             tilted(0.0, far)
         ),
         // A drum lying along (1, 0, 2), its top along a line at y = −8.
-        _ => "Cylinder(base: (-1e15, -1000000000000008.0, -2e15), \
+        2 => "Cylinder(base: (-1e15, -1000000000000008.0, -2e15), \
               top: (1e15, -1000000000000008.0, 2e15), radius: 1e15)"
+            .to_string(),
+        // A cone on the same axis, its radius 1e15 at the middle.
+        _ => "Cone(base: (-1e15, -1000000000000008.0, -2e15), base_radius: 984375000000000.0, \
+              top: (1e15, -1000000000000008.0, 2e15), top_radius: 1015625000000000.0)"
             .to_string(),
     };
     ron.replacen(
@@ -1071,9 +1076,10 @@ pub(crate) fn on_far_ground(ron: &str, seed: u64) -> String {
 
 /// Random CSG scenes on a ground reaching far beyond them, met by exact
 /// arithmetic (`csg::shape::on_plane`, `sphere_hits`,
-/// `far_cylinder_roots`): a sphere of radius 1e15 whose top is at
-/// `y = −8`, a polygon reaching 1e20 tilted out of every coordinate plane,
-/// and a lying drum of radius 1e15. Cells and Roth agree on every pixel, with
+/// `far_cylinder_roots`, `far_cone_roots`): a sphere of radius 1e15 whose
+/// top is at `y = −8`, a polygon reaching 1e20 tilted out of every
+/// coordinate plane, and a lying drum and cone of radius 1e15. Cells and
+/// Roth agree on every pixel, with
 /// mirrors, glass, lights and cameras inside, outside and behind the eye.
 #[test]
 fn random_scenes_on_a_ground_reaching_far_render_identically() {
