@@ -9,7 +9,9 @@
 //! Used by `shape` for the plane of a planar primitive, and the power of a
 //! sphere or of a cylinder's or cone's side, that reach far beyond their
 //! hits (`shape::on_plane`, `shape::sphere_hits`,
-//! `shape::far_cylinder_roots`, `shape::far_cone_roots`), a rare path. The components live inline up to
+//! `shape::far_cylinder_roots`, `shape::far_cone_roots`), a rare path.
+//! Products of expansions are formed as scaled copies merged in, in time
+//! linear in the lengths, and `compress` keeps the factors short. The components live inline up to
 //! `INLINE` of them (the products there rarely need more), on the heap
 //! beyond. Owns these functions only; touches no other module.
 
@@ -72,21 +74,82 @@ impl Expansion {
         }
     }
 
-    /// Adds `x · y · sign` (`sign` ±1), exactly, each partial product
-    /// grown into `self` in place: no temporary expansion is made.
+    /// Adds `x · y · sign` (`sign` ±1), exactly: `x` scaled by each
+    /// component of `y` in turn and merged in (`add_scaled`).
     pub fn add_product(&mut self, x: &Expansion, y: &Expansion, sign: f64) {
         for &b in &y.0 {
-            for &a in &x.0 {
-                self.add_f64_product(a, b * sign);
+            self.add_scaled(x, b * sign);
+        }
+    }
+
+    /// Adds `x · b`, exactly. A single component is grown in; more are
+    /// scaled (Shewchuk's Scale-Expansion) and merged (`merge`), in time
+    /// linear in the two lengths, where growing each partial product in
+    /// would take their product.
+    pub fn add_scaled(&mut self, x: &Expansion, b: f64) {
+        match x.0.as_slice() {
+            [] => {}
+            [a] => self.add_f64_product(*a, b),
+            _ => {
+                let scaled = x.scaled(b);
+                self.merge(&scaled);
             }
         }
     }
 
-    /// Adds `x · b`, exactly.
-    pub fn add_scaled(&mut self, x: &Expansion, b: f64) {
-        for &a in &x.0 {
-            self.add_f64_product(a, b);
+    /// `self · b` (Shewchuk's Scale-Expansion with zero elimination): each
+    /// component's two-product, its error two-summed into the running sum.
+    fn scaled(&self, b: f64) -> Expansion {
+        let mut h = SmallVec::new();
+        let (mut q, e) = two_prod(self.0[0], b);
+        if e != 0.0 {
+            h.push(e);
         }
+        for &a in &self.0[1..] {
+            let (p1, p0) = two_prod(a, b);
+            let (sum, e) = two_sum(q, p0);
+            if e != 0.0 {
+                h.push(e);
+            }
+            let (s, e) = two_sum(p1, sum);
+            if e != 0.0 {
+                h.push(e);
+            }
+            q = s;
+        }
+        if q != 0.0 {
+            h.push(q);
+        }
+        Expansion(h)
+    }
+
+    /// Adds `other` (Shewchuk's Fast-Expansion-Sum with zero elimination,
+    /// with two-sum throughout): the two merged by magnitude, then summed
+    /// from the smallest, each sum's nonzero error kept.
+    fn merge(&mut self, other: &Expansion) {
+        let (e, f) = (&self.0, &other.0);
+        let mut h: SmallVec<[f64; INLINE]> = SmallVec::with_capacity(e.len() + f.len());
+        let (mut i, mut j) = (0, 0);
+        let mut q = 0.0;
+        while i < e.len() || j < f.len() {
+            let take_e = j == f.len() || (i < e.len() && e[i].abs() < f[j].abs());
+            let next = if take_e {
+                i += 1;
+                e[i - 1]
+            } else {
+                j += 1;
+                f[j - 1]
+            };
+            let (s, err) = two_sum(q, next);
+            if err != 0.0 {
+                h.push(err);
+            }
+            q = s;
+        }
+        if q != 0.0 {
+            h.push(q);
+        }
+        self.0 = h;
     }
 
     /// Adds `a · b` of two f64 values, exactly.
@@ -200,6 +263,9 @@ mod tests {
                 .wrapping_add(1442695040888963407);
             state >> 11
         };
+        // A running sum of up to three products, merged in as the CSG
+        // paths do (`add_product`), checked too.
+        let (mut acc, mut acc_want, mut terms) = (Expansion::default(), 0i128, 0);
         for _ in 0..2000 {
             let mut val = || {
                 let k = (next() % (1 << 20)) as f64 - (1 << 19) as f64;
@@ -223,6 +289,21 @@ mod tests {
             assert!(y.0.windows(2).all(|w| w[0].abs() < w[1].abs()));
             assert!(y.0.iter().all(|&v| v != 0.0));
             assert_eq!(y.estimate(), x.estimate());
+            if terms == 3 {
+                (acc, acc_want, terms) = (Expansion::default(), 0, 0);
+            }
+            let sign = if next() % 2 == 0 { 1.0 } else { -1.0 };
+            acc.add_product(&Expansion::diff(a, b), &Expansion::diff(c, d), sign);
+            acc_want += if sign > 0.0 { want } else { -want };
+            terms += 1;
+            let got: i128 = acc.0.iter().map(|&v| dyadic(v, 8)).sum();
+            assert_eq!(got, acc_want, "a running sum of products");
+            assert!(
+                acc.0.windows(2).all(|w| w[0].abs() < w[1].abs()),
+                "{:?}",
+                acc.0
+            );
+            assert!(acc.0.iter().all(|&v| v != 0.0));
         }
     }
 

@@ -1091,21 +1091,7 @@ fn far_cylinder_roots(
         let c = exact_power_on(ray.origin, base, radius, !along);
         return circle_roots_with(f_perp, d_perp, radius, c);
     }
-    let f: [Expansion; 3] = std::array::from_fn(|k| Expansion::diff(ray.origin[k], base[k]));
-    let axis: [Expansion; 3] = std::array::from_fn(|k| Expansion::diff(top[k], base[k]));
-    let mut numerator = Expansion::default();
-    let mut axis2 = Expansion::default();
-    for k in 0..3 {
-        let (i, j) = ((k + 1) % 3, (k + 2) % 3);
-        // (f × A)_k = f_i·A_j − f_j·A_i.
-        let mut cross = Expansion::default();
-        cross.add_product(&f[i], &axis[j], 1.0);
-        cross.add_product(&f[j], &axis[i], -1.0);
-        cross.compress();
-        numerator.add_product(&cross, &cross, 1.0);
-        axis2.add_product(&axis[k], &axis[k], 1.0);
-    }
-    axis2.compress();
+    let [mut numerator, axis2, _] = exact_axial_terms(ray.origin, base, top);
     let mut r_axis2 = Expansion::default();
     r_axis2.add_scaled(&axis2, radius);
     numerator.add_scaled(&r_axis2, -radius);
@@ -1510,6 +1496,32 @@ fn far_cone_roots(
     }
 }
 
+/// The place of `o` against the axis from `base` to `top`, exactly, for
+/// `far_cylinder_roots` and `exact_cone_roots`: with `f = o − base` and
+/// `A = top − base`, `[|f × A|², |A|², f·A]` (the first is the squared
+/// distance from the axis times `|A|²`), each compressed.
+fn exact_axial_terms(o: Vec3, base: Vec3, top: Vec3) -> [super::exact::Expansion; 3] {
+    use super::exact::Expansion;
+    let f: [Expansion; 3] = std::array::from_fn(|k| Expansion::diff(o[k], base[k]));
+    let axis: [Expansion; 3] = std::array::from_fn(|k| Expansion::diff(top[k], base[k]));
+    let mut terms: [Expansion; 3] = Default::default();
+    for k in 0..3 {
+        let (i, j) = ((k + 1) % 3, (k + 2) % 3);
+        // (f × A)_k = f_i·A_j − f_j·A_i.
+        let mut cross = Expansion::default();
+        cross.add_product(&f[i], &axis[j], 1.0);
+        cross.add_product(&f[j], &axis[i], -1.0);
+        cross.compress();
+        terms[0].add_product(&cross, &cross, 1.0);
+        terms[1].add_product(&axis[k], &axis[k], 1.0);
+        terms[2].add_product(&f[k], &axis[k], 1.0);
+    }
+    for t in &mut terms {
+        t.compress();
+    }
+    terms
+}
+
 /// `far_cone_roots`' exact path. Out of line, as `far_sphere_roots`.
 #[cold]
 #[inline(never)]
@@ -1520,24 +1532,7 @@ fn exact_cone_roots(
     (qa, qb, disc): (f64, f64, f64),
 ) -> Option<(f64, f64)> {
     use super::exact::Expansion;
-    let f: [Expansion; 3] = std::array::from_fn(|k| Expansion::diff(ray.origin[k], base[k]));
-    let axis: [Expansion; 3] = std::array::from_fn(|k| Expansion::diff(top[k], base[k]));
-    let mut cross2 = Expansion::default();
-    let mut axis2 = Expansion::default();
-    let mut fa = Expansion::default();
-    for k in 0..3 {
-        let (i, j) = ((k + 1) % 3, (k + 2) % 3);
-        let mut cross = Expansion::default();
-        cross.add_product(&f[i], &axis[j], 1.0);
-        cross.add_product(&f[j], &axis[i], -1.0);
-        cross.compress();
-        cross2.add_product(&cross, &cross, 1.0);
-        axis2.add_product(&axis[k], &axis[k], 1.0);
-        fa.add_product(&f[k], &axis[k], 1.0);
-    }
-    cross2.compress();
-    axis2.compress();
-    fa.compress();
+    let [cross2, axis2, fa] = exact_axial_terms(ray.origin, base, top);
     // g·|A|² = rb·|A|² + D·(f·A).
     let mut g = Expansion::default();
     g.add_scaled(&axis2, rb);
