@@ -100,27 +100,19 @@ impl Expansion {
     /// `self · b` (Shewchuk's Scale-Expansion with zero elimination): each
     /// component's two-product, its error two-summed into the running sum.
     fn scaled(&self, b: f64) -> Expansion {
-        let mut h = SmallVec::new();
+        let mut h = Expansion::default();
         let (mut q, e) = two_prod(self.0[0], b);
-        if e != 0.0 {
-            h.push(e);
-        }
+        h.keep(e);
         for &a in &self.0[1..] {
             let (p1, p0) = two_prod(a, b);
             let (sum, e) = two_sum(q, p0);
-            if e != 0.0 {
-                h.push(e);
-            }
+            h.keep(e);
             let (s, e) = two_sum(p1, sum);
-            if e != 0.0 {
-                h.push(e);
-            }
+            h.keep(e);
             q = s;
         }
-        if q != 0.0 {
-            h.push(q);
-        }
-        Expansion(h)
+        h.keep(q);
+        h
     }
 
     /// Adds `other` (Shewchuk's Fast-Expansion-Sum with zero elimination,
@@ -128,28 +120,41 @@ impl Expansion {
     /// from the smallest, each sum's nonzero error kept.
     fn merge(&mut self, other: &Expansion) {
         let (e, f) = (&self.0, &other.0);
-        let mut h: SmallVec<[f64; INLINE]> = SmallVec::with_capacity(e.len() + f.len());
         let (mut i, mut j) = (0, 0);
-        let mut q = 0.0;
-        while i < e.len() || j < f.len() {
+        let merged = std::iter::from_fn(|| {
             let take_e = j == f.len() || (i < e.len() && e[i].abs() < f[j].abs());
-            let next = if take_e {
+            if take_e {
                 i += 1;
-                e[i - 1]
+                e.get(i - 1).copied()
             } else {
                 j += 1;
-                f[j - 1]
-            };
-            let (s, err) = two_sum(q, next);
-            if err != 0.0 {
-                h.push(err);
+                Some(f[j - 1])
             }
+        });
+        *self = Expansion::summed(merged);
+    }
+
+    /// The sum of `values` taken in their order (each at least as large as
+    /// the errors before it): each two-sum's nonzero error kept as a
+    /// component, the last sum on top.
+    fn summed(values: impl Iterator<Item = f64>) -> Expansion {
+        let mut h = Expansion::default();
+        let mut q = 0.0;
+        for v in values {
+            let (s, err) = two_sum(q, v);
+            h.keep(err);
             q = s;
         }
-        if q != 0.0 {
-            h.push(q);
+        h.keep(q);
+        h
+    }
+
+    /// Appends `x` as the next (larger) component unless it is zero.
+    #[inline]
+    fn keep(&mut self, x: f64) {
+        if x != 0.0 {
+            self.0.push(x);
         }
-        self.0 = h;
     }
 
     /// Adds `a · b` of two f64 values, exactly.
@@ -189,19 +194,7 @@ impl Expansion {
             }
         }
         g[bottom] = q;
-        let mut h = SmallVec::new();
-        let mut q = g[bottom];
-        for &gi in &g[bottom + 1..] {
-            let (s, err) = two_sum(gi, q);
-            if err != 0.0 {
-                h.push(err);
-            }
-            q = s;
-        }
-        if q != 0.0 {
-            h.push(q);
-        }
-        self.0 = h;
+        *self = Expansion::summed(g[bottom..].iter().copied());
     }
 
     /// The value to within a few ulps: the components summed from the

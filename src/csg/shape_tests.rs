@@ -944,6 +944,18 @@ fn triangle_hits_match_the_plane_and_barycentrics() {
     assert_vec_close(normal_at(&tri, o, d, cs[0]), n.normalize(), 1e-15);
 }
 
+/// Numbers uniform in [0, 1) from `seed` (a linear congruential
+/// generator: the far-reaching tests' rays).
+fn uniform(seed: u64) -> impl FnMut() -> f64 {
+    let mut state = seed;
+    move || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
 /// A tilted triangle reaching 1e20 to 1e50 away, on the plane `z = (x +
 /// y) / 64` (its vertices on it exactly: sums of `±far` and 0 are exact),
 /// met near the origin: `t` as
@@ -953,13 +965,7 @@ fn triangle_hits_match_the_plane_and_barycentrics() {
 #[test]
 fn a_tilted_triangle_reaching_far_is_met_on_its_exact_plane() {
     let on = |x: f64, y: f64| v(x, y, (x + y) / 64.0);
-    let mut state = 7u64;
-    let mut unit = || {
-        state = state
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (state >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut unit = uniform(7);
     for far in [1e20, 1e30, 1e50] {
         let tri = triangle(on(-far, -far), on(far, -far), on(0.0, far));
         for _ in 0..200 {
@@ -986,13 +992,7 @@ fn a_tilted_triangle_reaching_far_is_met_on_its_exact_plane() {
 /// same of a lying cone as wide (`shape::far_cone_roots`).
 #[test]
 fn a_drum_or_cone_reaching_far_is_met_on_its_exact_surface() {
-    let mut state = 11u64;
-    let mut unit = || {
-        state = state
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (state >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut unit = uniform(11);
     for far in [1e20, 1e30, 1e45] {
         let drum = cylinder(
             v(-far, -2.0 * far, -far),

@@ -937,19 +937,37 @@ fn a_disc_reaching_1e30_shades_as_a_slab() {
 /// Such a sphere's power is now exact (`csg::shape::sphere_hits`).
 #[test]
 fn a_sphere_ground_of_radius_1e45_shades_as_a_slab() {
+    assert_far_grounds_shade_as(slab_ground, |far| {
+        vec![format!(
+            "Sphere(center: (0, 0, {:?}), radius: {far:?}),",
+            -far
+        )]
+    });
+}
+
+/// A slab ground from `(-far, -far)` to `(far, far)`, its top at `z = 0`.
+fn slab_ground(far: f64) -> String {
+    format!(
+        "Box(min: ({x:?}, {x:?}, -0.5), max: ({far:?}, {far:?}, 0)),",
+        x = -far
+    )
+}
+
+/// For radii 1e12 to 1e45: every ground `grounds` writes shades as the one
+/// `reference` writes, every pixel within 1e-6 (`far_ground_scene_with`),
+/// each with the cells equal to Roth.
+fn assert_far_grounds_shade_as(reference: fn(f64) -> String, grounds: impl Fn(f64) -> Vec<String>) {
     for far in [1e12, 1e16, 1e20, 1e30, 1e45] {
-        let slab = format!(
-            "Box(min: ({x:?}, {x:?}, -0.5), max: ({far:?}, {far:?}, 0)),",
-            x = -far
-        );
-        let (want, _) = assert_renders_equal(&far_ground_scene_with(&slab), 64, 48);
-        let sphere = format!("Sphere(center: (0, 0, {:?}), radius: {far:?}),", -far);
-        let (got, _) = assert_renders_equal(&far_ground_scene_with(&sphere), 64, 48);
-        let bad = fraction_differing(&got, &want, 1e-6);
-        assert!(
-            bad == 0.0,
-            "the sphere of radius {far:e}: {bad} of pixels differ from the slab"
-        );
+        let (want, _) = assert_renders_equal(&far_ground_scene_with(&reference(far)), 64, 48);
+        for ground in grounds(far) {
+            let (got, _) = assert_renders_equal(&far_ground_scene_with(&ground), 64, 48);
+            let bad = fraction_differing(&got, &want, 1e-6);
+            assert!(
+                bad == 0.0,
+                "{ground} at {far:e}: {bad} of pixels differ from {}",
+                reference(far)
+            );
+        }
     }
 }
 
@@ -964,14 +982,9 @@ fn a_sphere_ground_of_radius_1e45_shades_as_a_slab() {
 /// offset as a cone, still 3.8% once the cylinder was fixed.
 #[test]
 fn a_cylinder_ground_of_radius_1e45_shades_as_a_slab() {
-    for far in [1e12, 1e16, 1e20, 1e30, 1e45] {
-        let slab = format!(
-            "Box(min: ({x:?}, {x:?}, -0.5), max: ({far:?}, {far:?}, 0)),",
-            x = -far
-        );
-        let (want, _) = assert_renders_equal(&far_ground_scene_with(&slab), 64, 48);
+    assert_far_grounds_shade_as(slab_ground, |far| {
         let x = -far;
-        let drums = [
+        vec![
             format!(
                 "Cylinder(base: (0, {x:?}, {x:?}), top: (0, {far:?}, {x:?}), radius: {far:?}),"
             ),
@@ -983,13 +996,8 @@ fn a_cylinder_ground_of_radius_1e45_shades_as_a_slab() {
             format!(
                 "Cone(base: (0, {x:?}, {x:?}), base_radius: {far:?}, top: (0, {far:?}, {x:?}), top_radius: {far:?}),"
             ),
-        ];
-        for drum in &drums {
-            let (got, _) = assert_renders_equal(&far_ground_scene_with(drum), 64, 48);
-            let bad = fraction_differing(&got, &want, 1e-6);
-            assert!(bad == 0.0, "{drum}: {bad} of pixels differ from the slab");
-        }
-    }
+        ]
+    });
 }
 
 /// A cone of radius 1e12 to 1e45 for a ground, its side through the origin
@@ -1003,36 +1011,34 @@ fn a_cylinder_ground_of_radius_1e45_shades_as_a_slab() {
 /// off the plane a few units across.)
 #[test]
 fn a_cone_ground_of_radius_1e45_shades_as_its_tangent_plane() {
-    for far in [1e12, 1e16, 1e20, 1e30, 1e45] {
-        let at = |x: f64, y: f64| format!("({x:?}, {y:?}, {:?})", y / 64.0);
-        let plane = format!(
-            "Polygon(vertices: [{}, {}, {}, {}]),",
-            at(-far, -far),
-            at(far, -far),
-            at(far, far),
-            at(-far, far)
-        );
-        let (want, _) = assert_renders_equal(&far_ground_scene_with(&plane), 64, 48);
-        let x = -far;
-        let cones = [
+    assert_far_grounds_shade_as(
+        |far| {
+            let at = |x: f64, y: f64| format!("({x:?}, {y:?}, {:?})", y / 64.0);
             format!(
-                "Cone(base: (0, {x:?}, {x:?}), base_radius: {:?}, top: (0, {far:?}, {x:?}), top_radius: {:?}),",
-                far * 63.0 / 64.0,
-                far * 65.0 / 64.0
-            ),
-            format!(
-                "Cone(base: (0, {far:?}, {:?}), base_radius: {:?}, top: (0, {far:?}, {:?}), top_radius: 0),",
-                x / 64.0,
-                2.0 * far,
-                far / 64.0
-            ),
-        ];
-        for cone in &cones {
-            let (got, _) = assert_renders_equal(&far_ground_scene_with(cone), 64, 48);
-            let bad = fraction_differing(&got, &want, 1e-6);
-            assert!(bad == 0.0, "{cone}: {bad} of pixels differ from the plane");
-        }
-    }
+                "Polygon(vertices: [{}, {}, {}, {}]),",
+                at(-far, -far),
+                at(far, -far),
+                at(far, far),
+                at(-far, far)
+            )
+        },
+        |far| {
+            let x = -far;
+            vec![
+                format!(
+                    "Cone(base: (0, {x:?}, {x:?}), base_radius: {:?}, top: (0, {far:?}, {x:?}), top_radius: {:?}),",
+                    far * 63.0 / 64.0,
+                    far * 65.0 / 64.0
+                ),
+                format!(
+                    "Cone(base: (0, {far:?}, {:?}), base_radius: {:?}, top: (0, {far:?}, {:?}), top_radius: 0),",
+                    x / 64.0,
+                    2.0 * far,
+                    far / 64.0
+                ),
+            ]
+        },
+    );
 }
 
 /// A square ground polygon from `(-far, -far)` to `(4, 4)`, each vertex
