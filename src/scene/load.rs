@@ -1343,7 +1343,14 @@ fn parallel(a: Vec3, b: Vec3) -> bool {
 }
 
 fn fmt_vec(v: Vector) -> String {
-    format!("({}, {}, {})", v[0], v[1], v[2])
+    format!("({}, {}, {})", fmt_num(v[0]), fmt_num(v[1]), fmt_num(v[2]))
+}
+
+/// A number as the shorter of its plain and its exponent form: `5`, `0.25`,
+/// `1e-300` (not three hundred digits), `1e20`.
+fn fmt_num(x: f64) -> String {
+    let (plain, exp) = (format!("{x}"), format!("{x:?}"));
+    if plain.len() <= exp.len() { plain } else { exp }
 }
 
 fn fmt_v3(v: Vec3) -> String {
@@ -1389,6 +1396,19 @@ mod tests {
             Err(e) => panic!("expected Error::Invalid containing {expected:?}, got {e:?}"),
             Ok(_) => panic!("expected Error::Invalid containing {expected:?}, got a scene"),
         }
+    }
+
+    /// Numbers in messages keep to the shorter of their plain and
+    /// exponent forms: an eye 1e-300 off the vertical through `look_at`
+    /// was named with three hundred digits.
+    #[test]
+    fn messages_write_tiny_and_huge_numbers_short() {
+        let text = "(camera: (eye: (1e-300, 0, 5), look_at: (0, 0, 0), fov_y: 40, width: 8, height: 6), objects: [])";
+        check_invalid(
+            text,
+            "up (0, 0, 1) is parallel to the view direction from eye to look_at (-1e-300, 0, -5)",
+        );
+        assert_eq!(fmt_vec([0.25, 1e20, -3.0]), "(0.25, 1e20, -3)");
     }
 
     #[track_caller]
