@@ -300,16 +300,20 @@ impl Affine {
     /// True when the linear part is a non-negative diagonal scale (no
     /// rotation): axis-aligned boxes stay axis-aligned and can be baked.
     pub fn is_axis_scale(&self) -> bool {
+        self.axis_scales()
+            .is_some_and(|s| s.cmpgt(Vec3::ZERO).all())
+    }
+
+    /// The scales of a linear part that keeps the coordinate axes (a
+    /// diagonal matrix, mirrors allowed), if it does.
+    pub fn axis_scales(&self) -> Option<Vec3> {
         let m = self.linear;
-        m.x_axis.y == 0.0
-            && m.x_axis.z == 0.0
-            && m.y_axis.x == 0.0
-            && m.y_axis.z == 0.0
-            && m.z_axis.x == 0.0
-            && m.z_axis.y == 0.0
-            && m.x_axis.x > 0.0
-            && m.y_axis.y > 0.0
-            && m.z_axis.z > 0.0
+        let off = [
+            m.x_axis.y, m.x_axis.z, m.y_axis.x, m.y_axis.z, m.z_axis.x, m.z_axis.y,
+        ];
+        off.iter()
+            .all(|&x| x == 0.0)
+            .then_some(Vec3::new(m.x_axis.x, m.y_axis.y, m.z_axis.z))
     }
 
     /// The uniform scale factor when the linear part is a rotation times a

@@ -989,9 +989,10 @@ fn a_tilted_triangle_reaching_far_is_met_on_its_exact_plane() {
 /// `t` as the plane `z = 0` gives it (the drum is flat there to 1e-19), to
 /// 1e-14, and its spawned rays offset by no size. The f64 power `|f⊥|² −
 /// r²` was some ε·r² off, the hit ε·r (`shape::far_cylinder_roots`). The
-/// same of a lying cone as wide (`shape::far_cone_roots`).
+/// same of a lying cone as wide (`shape::far_cone_roots`) and of a flat
+/// ellipsoid (`shape::ellipsoid_hits`).
 #[test]
-fn a_drum_or_cone_reaching_far_is_met_on_its_exact_surface() {
+fn a_drum_cone_or_ellipsoid_reaching_far_is_met_on_its_exact_surface() {
     let mut unit = uniform(11);
     for far in [1e20, 1e30, 1e45] {
         let drum = cylinder(
@@ -1028,6 +1029,32 @@ fn a_drum_or_cone_reaching_far_is_met_on_its_exact_surface() {
             assert_eq!(cs.len(), 2, "radius {far:e}: {o} + t·{d}");
             assert_close(cs[0].t, want, 1e-14);
             assert_eq!(cone.rounding_size(o + d * want, cs[0].part), 0.0);
+        }
+    }
+    // So is a flat ellipsoid, a unit sphere under a scale that is not
+    // uniform, its top on z = 0 (`shape::ellipsoid_hits`).
+    for far in [1e20, 1e30, 1e45] {
+        let m = Affine::from_srt(
+            v(far, far / 4.0, far / 64.0),
+            Vec3::ZERO,
+            v(0.0, 0.0, -far / 64.0),
+        );
+        let ground = placed(
+            Shape::Sphere {
+                center: Vec3::ZERO,
+                radius: 1.0,
+            },
+            &m,
+        );
+        assert!(ground.transform.is_some());
+        for _ in 0..200 {
+            let o = v(unit() * 4.0 - 2.0, unit() * 4.0 - 2.0, 1.0 + unit() * 3.0);
+            let d = v(unit() - 0.5, unit() - 0.5, -0.2 - unit());
+            let want = -o.z / d.z;
+            let cs = crossings(&hits(&ground, o, d));
+            assert_eq!(cs.len(), 2, "semi-axis {far:e}: {o} + t·{d}");
+            assert_close(cs[0].t, want, 1e-14);
+            assert_eq!(ground.rounding_size(o + d * want, cs[0].part), 0.0);
         }
     }
     // On its far side, as wide as its hit is far, it keeps its size.

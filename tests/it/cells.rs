@@ -1044,13 +1044,14 @@ fn compare_with_roth(
 /// Random scene `ron` (as `lit_random_scene` writes it) on a ground
 /// reaching far beyond it, met by exact arithmetic: by `seed`, a sphere of
 /// radius 1e15 whose top is at `y = −8`, a polygon reaching 1e20 tilted
-/// out of every coordinate plane, or a drum of radius 1e15 or a cone (its
+/// out of every coordinate plane, a drum of radius 1e15 or a cone (its
 /// radius 1e15 at the middle) lying along a tilted horizontal axis, its
-/// top at `y = −8` there.
+/// top at `y = −8` there, or an ellipsoid of semi-axes 1e15, 2.5e14 and
+/// 1e15, its top at `y = −8`.
 pub(crate) fn on_far_ground(ron: &str, seed: u64) -> String {
     let far = 1e20f64;
     let tilted = |x: f64, z: f64| format!("({x:?}, {:?}, {z:?})", -8.0 + (x - z) / 64.0);
-    let ground = match seed % 4 {
+    let ground = match seed % 5 {
         0 => "Sphere(center: (0, -1000000000000008.0, 0), radius: 1e15)".to_string(),
         1 => format!(
             "Polygon(vertices: [{}, {}, {}])",
@@ -1061,6 +1062,11 @@ pub(crate) fn on_far_ground(ron: &str, seed: u64) -> String {
         // A drum lying along (1, 0, 2), its top along a line at y = −8.
         2 => "Cylinder(base: (-1e15, -1000000000000008.0, -2e15), \
               top: (1e15, -1000000000000008.0, 2e15), radius: 1e15)"
+            .to_string(),
+        // An ellipsoid of semi-axes 1e15, 2.5e14 and 1e15, its top at
+        // y = −8.
+        4 => "Transform(translate: (0, -250000000000008.0, 0), scale: (1e15, 2.5e14, 1e15), \
+              child: Sphere(center: (0, 0, 0), radius: 1))"
             .to_string(),
         // A cone on the same axis, its radius 1e15 at the middle.
         _ => "Cone(base: (-1e15, -1000000000000008.0, -2e15), base_radius: 984375000000000.0, \
@@ -1076,9 +1082,10 @@ pub(crate) fn on_far_ground(ron: &str, seed: u64) -> String {
 
 /// Random CSG scenes on a ground reaching far beyond them, met by exact
 /// arithmetic (`csg::shape::on_plane`, `sphere_hits`,
-/// `far_cylinder_roots`, `far_cone_roots`): a sphere of radius 1e15 whose
-/// top is at `y = −8`, a polygon reaching 1e20 tilted out of every
-/// coordinate plane, and a lying drum and cone of radius 1e15. Cells and
+/// `far_cylinder_roots`, `far_cone_roots`, `ellipsoid_hits`): a sphere
+/// of radius 1e15 whose top is at `y = −8`, a polygon reaching 1e20
+/// tilted out of every coordinate plane, a lying drum and cone of radius
+/// 1e15, and an ellipsoid as large. Cells and
 /// Roth agree on every pixel, with
 /// mirrors, glass, lights and cameras inside, outside and behind the eye.
 #[test]
