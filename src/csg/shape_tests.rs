@@ -994,6 +994,10 @@ fn a_tilted_triangle_reaching_far_is_met_on_its_exact_plane() {
 #[test]
 fn a_drum_cone_or_ellipsoid_reaching_far_is_met_on_its_exact_surface() {
     let mut unit = uniform(11);
+    let sphere = Shape::Sphere {
+        center: Vec3::ZERO,
+        radius: 1.0,
+    };
     for far in [1e20, 1e30, 1e45] {
         let drum = cylinder(
             v(-far, -2.0 * far, -far),
@@ -1001,19 +1005,8 @@ fn a_drum_cone_or_ellipsoid_reaching_far_is_met_on_its_exact_surface() {
             far,
             true,
         );
-        for _ in 0..200 {
-            let o = v(unit() * 4.0 - 2.0, unit() * 4.0 - 2.0, 1.0 + unit() * 3.0);
-            let d = v(unit() - 0.5, unit() - 0.5, -0.2 - unit());
-            let want = -o.z / d.z;
-            let cs = crossings(&hits(&drum, o, d));
-            assert_eq!(cs.len(), 2, "radius {far:e}: {o} + t·{d}");
-            assert_close(cs[0].t, want, 1e-14);
-            assert_eq!(drum.rounding_size(o + d * want, cs[0].part), 0.0);
-        }
-    }
-    // So is a cone lying along y, its radius growing by 1/64 a unit, its
-    // top generator on the plane z = y/64 (`shape::far_cone_roots`).
-    for far in [1e20, 1e30, 1e45] {
+        // A cone lying along y, its radius growing by 1/64 a unit, its top
+        // generator on the plane z = y/64.
         let cone = cone(
             v(0.0, -far, -far),
             far * 63.0 / 64.0,
@@ -1021,40 +1014,27 @@ fn a_drum_cone_or_ellipsoid_reaching_far_is_met_on_its_exact_surface() {
             far * 65.0 / 64.0,
             true,
         );
-        for _ in 0..200 {
-            let o = v(unit() * 4.0 - 2.0, unit() * 4.0 - 2.0, 1.0 + unit() * 3.0);
-            let d = v(unit() - 0.5, unit() - 0.5, -0.2 - unit());
-            let want = (o.y - 64.0 * o.z) / (64.0 * d.z - d.y);
-            let cs = crossings(&hits(&cone, o, d));
-            assert_eq!(cs.len(), 2, "radius {far:e}: {o} + t·{d}");
-            assert_close(cs[0].t, want, 1e-14);
-            assert_eq!(cone.rounding_size(o + d * want, cs[0].part), 0.0);
-        }
-    }
-    // So is a flat ellipsoid, a unit sphere under a scale that is not
-    // uniform, its top on z = 0 (`shape::ellipsoid_hits`).
-    for far in [1e20, 1e30, 1e45] {
-        let m = Affine::from_srt(
+        let flat = Affine::from_srt(
             v(far, far / 4.0, far / 64.0),
             Vec3::ZERO,
             v(0.0, 0.0, -far / 64.0),
         );
-        let ground = placed(
-            Shape::Sphere {
-                center: Vec3::ZERO,
-                radius: 1.0,
-            },
-            &m,
-        );
-        assert!(ground.transform.is_some());
-        for _ in 0..200 {
-            let o = v(unit() * 4.0 - 2.0, unit() * 4.0 - 2.0, 1.0 + unit() * 3.0);
-            let d = v(unit() - 0.5, unit() - 0.5, -0.2 - unit());
-            let want = -o.z / d.z;
-            let cs = crossings(&hits(&ground, o, d));
-            assert_eq!(cs.len(), 2, "semi-axis {far:e}: {o} + t·{d}");
-            assert_close(cs[0].t, want, 1e-14);
-            assert_eq!(ground.rounding_size(o + d * want, cs[0].part), 0.0);
+        let ellipsoid = placed(sphere.clone(), &flat);
+        assert!(ellipsoid.transform.is_some());
+        let on_z0 = |o: Vec3, d: Vec3| -o.z / d.z;
+        let on_slope = |o: Vec3, d: Vec3| (o.y - 64.0 * o.z) / (64.0 * d.z - d.y);
+        let grounds: [(&Primitive, &dyn Fn(Vec3, Vec3) -> f64); 3] =
+            [(&drum, &on_z0), (&cone, &on_slope), (&ellipsoid, &on_z0)];
+        for (ground, plane_t) in grounds {
+            for _ in 0..200 {
+                let o = v(unit() * 4.0 - 2.0, unit() * 4.0 - 2.0, 1.0 + unit() * 3.0);
+                let d = v(unit() - 0.5, unit() - 0.5, -0.2 - unit());
+                let want = plane_t(o, d);
+                let cs = crossings(&hits(ground, o, d));
+                assert_eq!(cs.len(), 2, "{:?} at {far:e}: {o} + t·{d}", ground.shape);
+                assert_close(cs[0].t, want, 1e-14);
+                assert_eq!(ground.rounding_size(o + d * want, cs[0].part), 0.0);
+            }
         }
     }
     // On its far side, as wide as its hit is far, it keeps its size.
