@@ -1023,8 +1023,10 @@ fn a_drum_cone_or_ellipsoid_reaching_far_is_met_on_its_exact_surface() {
         assert!(ellipsoid.transform.is_some());
         let on_z0 = |o: Vec3, d: Vec3| -o.z / d.z;
         let on_slope = |o: Vec3, d: Vec3| (o.y - 64.0 * o.z) / (64.0 * d.z - d.y);
-        let grounds: [(&Primitive, &dyn Fn(Vec3, Vec3) -> f64); 3] =
-            [(&drum, &on_z0), (&cone, &on_slope), (&ellipsoid, &on_z0)];
+        // The `t` at which o + t·d meets the plane the ground is flat to.
+        type PlaneT = fn(Vec3, Vec3) -> f64;
+        let grounds: [(&Primitive, PlaneT); 3] =
+            [(&drum, on_z0), (&cone, on_slope), (&ellipsoid, on_z0)];
         for (ground, plane_t) in grounds {
             for _ in 0..200 {
                 let o = v(unit() * 4.0 - 2.0, unit() * 4.0 - 2.0, 1.0 + unit() * 3.0);
