@@ -7,11 +7,12 @@
 //! away) then comes out to within a few ulps of its true value.
 //!
 //! Used by `shape` for the plane of a planar primitive, and the power of a
-//! sphere or of a cylinder's or cone's side, that reach far beyond their
-//! hits (`shape::on_plane`, `shape::sphere_hits`, `shape::ellipsoid_hits`,
-//! `shape::far_cylinder_roots`, `shape::far_cone_roots`), a rare path.
-//! Products of expansions are formed as scaled copies merged in, in time
-//! linear in the lengths, and `compress` keeps the factors short. The components live inline up to
+//! sphere, an ellipsoid, or a cylinder's or cone's side, that reach far
+//! beyond their hits (`shape::on_plane`, `shape::sphere_hits`,
+//! `shape::ellipsoid_hits`, `shape::far_cylinder_roots`,
+//! `shape::far_cone_roots`), a rare path. Products of expansions are
+//! formed as scaled copies merged in, in time linear in the lengths, and
+//! `compress` keeps the factors short. The components live inline up to
 //! `INLINE` of them (the products there rarely need more), on the heap
 //! beyond. Owns these functions only; touches no other module.
 

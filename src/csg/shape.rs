@@ -159,14 +159,13 @@ impl Primitive {
     /// the world, whatever the map's scales; `|o − T|` is at most
     /// `|p − T|` and the distance, so `|p − T|` covers it nine times over.
     /// A triangle or polygon lying in a coordinate plane is met as a box's
-    /// face is (`on_plane`): size 0 too; so is one reaching 2^21 times
-    /// beyond the hit, met on its exact plane, and a sphere as large
-    /// against its hit, met with exact arithmetic (`sphere_hits`), and the
-    /// side (`part`) of a cylinder or cone as wide (`far_cylinder_roots`,
-    /// `far_cone_roots`), and an ellipsoid on the coordinate axes
-    /// (`ellipsoid_hits`). A
-    /// cylinder or cone otherwise combines distances along and from its axis that
-    /// the hit's distance from its base and its height bound
+    /// face is (`on_plane`): size 0 too. So, reaching 2^21 times beyond
+    /// the hit, is a triangle or polygon, met on its exact plane; a sphere,
+    /// and an ellipsoid on the coordinate axes, met with their exact power
+    /// (`sphere_hits`, `ellipsoid_hits`); and the side (`part`) of a
+    /// cylinder or cone (`far_cylinder_roots`, `far_cone_roots`). A
+    /// cylinder or cone otherwise combines distances along and from its
+    /// axis that the hit's distance from its base and its height bound
     /// (`axial_size`), which for a disc of radius 1e20 are far below its
     /// extent. Every other shape subtracts or combines magnitudes of its
     /// own size (a sphere's centre and radius, a tilted polygon's
