@@ -826,6 +826,18 @@ fn a_ground_reaching_1e50_away_is_found_near_the_camera() {
 #[test]
 fn a_ground_polygon_reaching_1e50_away_shades_as_one_reaching_1e4() {
     let flat = |x: f64, y: f64| format!("({x:?}, {y:?}, 0)");
+    for_planar_grounds_reaching_far(&flat, |film, near, what| {
+        assert_same_picture(film, near, what);
+    });
+}
+
+/// For a ground written by `at` as a polygon and as two triangles, reaching
+/// 1e4 and then 1e20, 1e30 and 1e50: `check(film, near, what)` of each far
+/// picture against the near one, both with the cells as Roth.
+fn for_planar_grounds_reaching_far(
+    at: &dyn Fn(f64, f64) -> String,
+    check: impl Fn(&Film, &Film, &str),
+) {
     for (kind, ground) in [
         (
             "polygon",
@@ -833,11 +845,11 @@ fn a_ground_polygon_reaching_1e50_away_shades_as_one_reaching_1e4() {
         ),
         ("triangles", triangle_ground),
     ] {
-        let scene = |far: f64| far_ground_scene_with(&ground(far, &flat));
+        let scene = |far: f64| far_ground_scene_with(&ground(far, at));
         let (near, _) = assert_renders_equal(&scene(1e4), 64, 48);
         for far in [1e20, 1e30, 1e50] {
             let (film, _) = assert_renders_equal(&scene(far), 64, 48);
-            assert_same_picture(&film, &near, &format!("the {kind} reaching {far:e}"));
+            check(&film, &near, &format!("the {kind} reaching {far:e}"));
         }
     }
 }
@@ -856,24 +868,13 @@ fn a_ground_polygon_reaching_1e50_away_shades_as_one_reaching_1e4() {
 #[test]
 fn a_tilted_ground_polygon_reaching_1e50_away_shades_as_one_reaching_1e4() {
     let tilted = |x: f64, y: f64| format!("({x:?}, {y:?}, {:?})", (x + y) / 64.0);
-    for (kind, ground) in [
-        (
-            "polygon",
-            polygon_ground as fn(f64, &dyn Fn(f64, f64) -> String) -> String,
-        ),
-        ("triangles", triangle_ground),
-    ] {
-        let scene = |far: f64| far_ground_scene_with(&ground(far, &tilted));
-        let (near, _) = assert_renders_equal(&scene(1e4), 64, 48);
-        for far in [1e20, 1e30, 1e50] {
-            let (film, _) = assert_renders_equal(&scene(far), 64, 48);
-            let bad = fraction_differing(&film, &near, 1e-6);
-            assert!(
-                bad == 0.0,
-                "the tilted {kind} reaching {far:e}: {bad} of pixels differ from one reaching 1e4"
-            );
-        }
-    }
+    for_planar_grounds_reaching_far(&tilted, |film, near, what| {
+        let bad = fraction_differing(film, near, 1e-6);
+        assert!(
+            bad == 0.0,
+            "{what}, tilted: {bad} of pixels differ from one reaching 1e4"
+        );
+    });
 }
 
 /// Discs for a ground, a cone and a cylinder of height 0.5 and radius
