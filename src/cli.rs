@@ -594,9 +594,14 @@ fn run_render(a: RenderArgs) -> Result<()> {
     if !job.quiet {
         let how = match (machine_stats, &job.machine) {
             (Some(ms), Some((topo, _))) => {
-                format!("cells on {} with {} nodes", topo.name, ms.per_node.len())
+                let nodes = counted(ms.per_node.len(), "node");
+                format!("cells on {} with {nodes}", topo.name)
             }
-            _ => format!("{}, {} threads", job.accel.name(), job.opts.threads),
+            _ => format!(
+                "{}, {}",
+                job.accel.name(),
+                counted(job.opts.threads, "thread")
+            ),
         };
         let aa = match job.adaptive {
             None => String::new(),
@@ -883,9 +888,9 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
     report::stats::extend(&mut v, structure_json(cs));
     // The mapping on the modelled machine: what each node would hold.
     println!(
-        "machine             {} with {} nodes of {:.2} MiB, {} mapping",
+        "machine             {} with {} of {:.2} MiB, {} mapping",
         topo.name,
-        topo.nodes(),
+        counted(topo.nodes(), "node"),
         topo.node_memory as f64 / 1048576.0,
         mopts.mapping.name()
     );
@@ -1061,4 +1066,20 @@ fn run_scale(a: ScaleArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// `n` and `noun`, plural unless `n` is 1 ("1 node", "32 nodes").
+fn counted(n: usize, noun: &str) -> String {
+    format!("{n} {noun}{}", if n == 1 { "" } else { "s" })
+}
+
+#[cfg(test)]
+mod tests {
+    /// The summary line counts "1 node" and "32 nodes", "1 thread".
+    #[test]
+    fn counts_take_the_plural_unless_one() {
+        assert_eq!(super::counted(1, "node"), "1 node");
+        assert_eq!(super::counted(32, "node"), "32 nodes");
+        assert_eq!(super::counted(0, "thread"), "0 threads");
+    }
 }

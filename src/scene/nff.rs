@@ -711,8 +711,9 @@ impl NffWriter<'_> {
                 return Err(self.refuse(
                     path,
                     format!(
-                        "NFF has no CSG: a {kind} cannot be written (NFF's object list is a \
-                         union; write .ron, .json or .pov instead)"
+                        "NFF has no CSG: {} cannot be written (NFF's object list is a \
+                         union; write .ron, .json or .pov instead)",
+                        with_article(kind)
                     ),
                 ));
             }
@@ -841,6 +842,13 @@ impl NffWriter<'_> {
     }
 }
 
+/// `word` with its indefinite article, as a message names a node's kind
+/// ("an Intersection", "a Difference").
+fn with_article(word: &str) -> String {
+    let vowel = word.starts_with(|c: char| "AEIOUaeiou".contains(c));
+    format!("{} {word}", if vowel { "an" } else { "a" })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -920,6 +928,14 @@ mod tests {
         );
         assert!(
             e.starts_with("objects[0].Union.children[0]: NFF has no CSG: a Difference"),
+            "{e}"
+        );
+        let e = refusal(
+            "Intersection(children: [Sphere(center: (0, 0, 0), radius: 1),
+                Sphere(center: (1, 0, 0), radius: 1)])",
+        );
+        assert!(
+            e.starts_with("objects[0]: NFF has no CSG: an Intersection"),
             "{e}"
         );
         assert!(
