@@ -17,6 +17,21 @@ use crate::report::{self, ImageMetrics, image_io::folder_of, stats::num};
 use crate::scene::{self, Scene};
 use crate::trace::RayKind;
 
+/// Prints to standard output, as `print!` does, through `write_stdout`.
+macro_rules! out {
+    ($($arg:tt)*) => {
+        $crate::cli::write_stdout(format_args!($($arg)*))
+    };
+}
+
+/// Prints a line to standard output, as `println!` does, through
+/// `write_stdout`.
+macro_rules! outln {
+    ($($arg:tt)*) => {
+        $crate::cli::write_stdout(format_args!("{}\n", format_args!($($arg)*)))
+    };
+}
+
 mod quality;
 
 #[derive(Parser, Debug)]
@@ -638,13 +653,13 @@ fn run_render(a: RenderArgs) -> Result<()> {
     }
     if let Some(m) = metrics {
         // Error beside run time, always printed when asked for.
-        println!(
+        outln!(
             "rmse {:.6}  psnr {:.2} dB  max {:.6}  {}",
             m.rmse,
             m.psnr,
             m.max_error,
             times(stats.wall_seconds, out.virtual_seconds)
-        );
+        )?;
     }
     Ok(())
 }
@@ -847,73 +862,78 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
     let s = &cs.stats;
     let front = cs.region(crate::cells::Region::Front);
     let back = cs.region(crate::cells::Region::Back);
-    println!("scene               {}", a.scene.display());
-    println!(
+    outln!("scene               {}", a.scene.display())?;
+    outln!(
         "primitives          {} ({} culled: empty minimal box)",
         scene.primitives.len(),
         s.culled_primitives
-    );
-    println!("csg tree nodes      {}", s.tree_nodes);
-    println!(
+    )?;
+    outln!("csg tree nodes      {}", s.tree_nodes)?;
+    outln!(
         "super cells         {} (front {}, behind the eye plane {})",
         s.super_cells,
         front.partition.leaves.len(),
         back.partition.leaves.len()
-    );
-    println!("cells               {} ({} empty)", s.cells, s.empty_cells);
-    println!(
+    )?;
+    outln!("cells               {} ({} empty)", s.cells, s.empty_cells)?;
+    outln!(
         "primitives per cell mean {:.2}, max {}",
-        s.prims_per_cell_mean, s.prims_per_cell_max
-    );
-    println!(
+        s.prims_per_cell_mean,
+        s.prims_per_cell_max
+    )?;
+    outln!(
         "subtree nodes/cell  mean {:.2}, max {} (whole tree {})",
-        s.subtree_nodes_mean, s.subtree_nodes_max, s.tree_nodes
-    );
-    println!("distinct subtrees   {}", s.distinct_subtrees);
-    println!("bsp segment splits  {}", s.bsp_splits);
-    println!(
+        s.subtree_nodes_mean,
+        s.subtree_nodes_max,
+        s.tree_nodes
+    )?;
+    outln!("distinct subtrees   {}", s.distinct_subtrees)?;
+    outln!("bsp segment splits  {}", s.bsp_splits)?;
+    outln!(
         "walk margin         {:.2e} (boxes grown for the walk's rounding)",
         s.walk_margin
-    );
+    )?;
     if let Some(hint) = coarse_margin_hint(&scene, s.walk_margin) {
         eprintln!("hypercast: hint: {hint}");
     }
-    println!(
+    outln!(
         "structure bytes     {} ({:.2} MiB)",
         s.bytes,
         s.bytes as f64 / (1024.0 * 1024.0)
-    );
-    println!("build time          {:.4} s", s.build_seconds);
+    )?;
+    outln!("build time          {:.4} s", s.build_seconds)?;
     let mut v = json!({"scene": a.scene.display().to_string(), "width": width, "height": height, "primitives": scene.primitives.len()});
     report::stats::extend(&mut v, structure_json(cs));
     // The mapping on the modelled machine: what each node would hold.
-    println!(
+    outln!(
         "machine             {} with {} of {:.2} MiB, {} mapping",
         topo.name,
         counted(topo.nodes(), "node"),
         topo.node_memory as f64 / 1048576.0,
         mopts.mapping.name()
-    );
-    println!(
+    )?;
+    outln!(
         "replicated scene    {:.2} MiB per node if every node held everything",
         plan.replicated_bytes as f64 / 1048576.0
-    );
-    println!(
+    )?;
+    outln!(
         "paths in flight     {} per node (each at most {} bytes)",
-        plan.window, plan.path_bytes
-    );
+        plan.window,
+        plan.path_bytes
+    )?;
     if plan.split_super_cells > 0 {
-        println!(
+        outln!(
             "split for balance   {} super cells over half a node's share, built {} more time(s)",
-            plan.split_super_cells, plan.rebuilds
-        );
+            plan.split_super_cells,
+            plan.rebuilds
+        )?;
     }
     if plan.subdivision != machine::host::Subdivision::Balanced {
-        println!("subdivision         {}", plan.subdivision.describe());
+        outln!("subdivision         {}", plan.subdivision.describe())?;
     }
-    println!(
+    outln!(
         "node  super_cells  copies  cells  primitives  memory_MiB  structure_MiB  estimated_work"
-    );
+    )?;
     let mut nodes_json = Vec::new();
     for (i, (share, local)) in plan.node_shares().enumerate() {
         let owned: Vec<(usize, usize)> = (0..2)
@@ -931,24 +951,24 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
             .sum();
         // `+ 0.0`: an empty float sum is -0.0, which prints as "-0".
         let work: f64 = owned.iter().map(|&(r, s)| plan.work[r][s]).sum::<f64>() + 0.0;
-        println!(
+        outln!(
             "{i:>4}  {:>11}  {:>6}  {cells:>5}  {:>10}  {:>10.3}  {:>13.3}  {work:>14.0}",
             owned.len(),
             plan.copies_held(i),
             local.primitives.len(),
             plan.share_bytes[i] as f64 / 1048576.0,
             share.bytes() as f64 / 1048576.0
-        );
+        )?;
         nodes_json.push(json!({"node": i, "super_cells": owned.len(), "copies": plan.copies_held(i), "cells": cells, "primitives": local.primitives.len(), "memory_bytes": plan.share_bytes[i], "structure_bytes": share.bytes(), "estimated_work": work}));
     }
     let held: usize = plan.node_shares().map(|(c, _)| c.bytes()).sum();
-    println!(
+    outln!(
         "structure held     {:.2} MiB over all nodes, {:.2}x the whole structure",
         held as f64 / 1048576.0,
         held as f64 / s.bytes.max(1) as f64
-    );
+    )?;
     if let Err(e) = plan.check(&scene, &topo) {
-        println!("does not fit: {e}");
+        outln!("does not fit: {e}")?;
     }
     report::stats::extend(
         &mut v,
@@ -1031,7 +1051,7 @@ fn run_scale(a: ScaleArgs) -> Result<()> {
     });
     pb.finish_and_clear();
     let rows = rows?;
-    print!("{}", report::scale::table(&rows));
+    out!("{}", report::scale::table(&rows))?;
     // Made only now, so that a refused scene or dimension leaves nothing
     // behind (the table above is printed either way).
     std::fs::create_dir_all(&a.out).map_err(|e| Error::Write {
@@ -1066,6 +1086,22 @@ fn run_scale(a: ScaleArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// Writes a report's text to standard output. A reader that has gone
+/// (`hypercast inspect scene.ron | head`) is no error: it has what it
+/// wanted, and the command goes on to write its files. (`print!` panicked
+/// there.) Any other failure to write is one, so that a table sent to a
+/// full disk is not lost in silence.
+pub(crate) fn write_stdout(args: std::fmt::Arguments) -> Result<()> {
+    use std::io::Write;
+    match std::io::stdout().lock().write_fmt(args) {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(Error::Write {
+            path: "standard output".into(),
+            message: e.to_string(),
+        }),
+        _ => Ok(()),
+    }
 }
 
 /// `n` and `noun`, plural unless `n` is 1 ("1 node", "32 nodes").

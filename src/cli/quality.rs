@@ -153,13 +153,13 @@ pub fn run(a: QualityArgs) -> Result<()> {
         &points,
     )?;
     if !a.quiet {
-        print!("{}", rq::table(&points));
-        println!(
+        out!("{}", rq::table(&points))?;
+        outln!(
             "pareto front: {} of {} points",
             points.iter().filter(|p| p.pareto).count(),
             points.len()
-        );
-        println!(
+        )?;
+        outln!(
             "\nmodel error: virtual time on a {} topology against the machine's wall time, \
              d = {} ({cores} cores)",
             calibrate::HOST_TOPOLOGY,
@@ -167,13 +167,13 @@ pub fn run(a: QualityArgs) -> Result<()> {
                 .map(u32::to_string)
                 .collect::<Vec<_>>()
                 .join(", ")
-        );
-        println!("calibration: {}", calibration.describe());
-        print!("{}", rq::model_table(&points));
-        println!(
+        )?;
+        outln!("calibration: {}", calibration.describe())?;
+        out!("{}", rq::model_table(&points))?;
+        outln!(
             "model error (virtual against wall time): {}",
             rq::model_summary(&points)
-        );
+        )?;
         eprintln!("hypercast: wrote {} and {}", csv.display(), png.display());
     }
     Ok(())

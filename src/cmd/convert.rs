@@ -79,7 +79,7 @@ pub fn run(a: ConvertArgs) -> Result<()> {
         };
         match target {
             Target::Pov => pov::write_pov(&model, &a.scene),
-            Target::Scene(syntax) => super::scene_text(&model, syntax, &a.scene),
+            Target::Scene(syntax) => crate::scene::load::write_scene(&model, syntax, &a.scene),
         }
     })??;
     super::write_text(&a.output, &text)?;

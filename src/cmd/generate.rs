@@ -106,7 +106,7 @@ pub fn run(a: GenArgs) -> Result<()> {
             },
         ),
     };
-    let text = super::scene_text(&model, syntax, Path::new(&name))?;
+    let text = crate::scene::load::write_scene(&model, syntax, Path::new(&name))?;
     super::write_text(&out.output, &text)?;
     if !out.quiet {
         eprintln!("hypercast: wrote {} ({name})", out.output.display());

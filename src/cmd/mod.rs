@@ -9,21 +9,10 @@ pub mod generate;
 use std::path::Path;
 
 use crate::Result;
-use crate::scene::SceneSyntax;
-use crate::scene::model::SceneFile;
 
 /// Writes `text` to `path` atomically: nothing is left behind on failure.
 fn write_text(path: &Path, text: &str) -> Result<()> {
     crate::report::image_io::write_atomically(path, |file| {
         std::io::Write::write_all(file, text.as_bytes()).map_err(|e| e.to_string())
     })
-}
-
-/// The text of `model` in `syntax`; `source` names the scene in messages
-/// (NFF export refuses what NFF cannot say, naming the node).
-fn scene_text(model: &SceneFile, syntax: SceneSyntax, source: &Path) -> Result<String> {
-    match syntax {
-        SceneSyntax::Nff => crate::scene::nff::write_nff(model, source),
-        _ => crate::scene::load::scene_to_string(model, syntax),
-    }
 }

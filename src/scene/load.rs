@@ -212,20 +212,166 @@ pub fn compile_model(model: &SceneFile, file: &Path) -> Result<(Scene, Vec<Strin
 
 /// Writes a model as RON (pretty, with bare optional values as `load`
 /// reads them), JSON (pretty) or NFF (`nff::write_nff`, which refuses what
-/// NFF cannot say; its errors name the scene `<scene>`: call `write_nff`
-/// directly to name the source).
+/// NFF cannot say), as `write_scene` does, naming the scene `<scene>` in
+/// errors.
 pub fn scene_to_string(model: &SceneFile, syntax: SceneSyntax) -> Result<String> {
+    write_scene(model, syntax, Path::new("<scene>"))
+}
+
+/// Writes a model as RON, JSON or NFF text; errors name `source`. Both
+/// pretty forms indent the first `PRETTY_DEPTH` levels of nesting and
+/// write what lies deeper compactly. A tree deeper than JSON scenes load
+/// (`MAX_NESTING`) is refused as JSON, so that no file is written that
+/// cannot be read back.
+pub fn write_scene(model: &SceneFile, syntax: SceneSyntax, source: &Path) -> Result<String> {
+    let cannot = |syntax: &str, e: &dyn std::fmt::Display| {
+        Error::Render(format!("cannot write the scene as {syntax}: {e}"))
+    };
     match syntax {
         SceneSyntax::Ron => on_load_stack(|| {
+            let pretty = ron::ser::PrettyConfig::default().depth_limit(PRETTY_DEPTH);
             ron_options()
-                .to_string_pretty(model, ron::ser::PrettyConfig::default())
-                .map_err(|e| Error::Render(format!("cannot write the scene as RON: {e}")))
+                .to_string_pretty(model, pretty)
+                .map_err(|e| cannot("RON", &e))
         })?,
         SceneSyntax::Json => on_load_stack(|| {
-            serde_json::to_string_pretty(model)
-                .map_err(|e| Error::Render(format!("cannot write the scene as JSON: {e}")))
+            let mut text = Vec::new();
+            let mut ser = serde_json::Serializer::with_formatter(&mut text, DepthCapped::default());
+            serde::Serialize::serialize(model, &mut ser).map_err(|e| cannot("JSON", &e))?;
+            // serde_json writes valid UTF-8 only.
+            let text = String::from_utf8(text).map_err(|e| cannot("JSON", &e))?;
+            // The loader's own check, so that what it refuses is never
+            // written.
+            if json_too_deep(&text).is_some() {
+                return Err(Error::invalid(
+                    source,
+                    "objects",
+                    format!(
+                        "JSON cannot hold this tree: it nests more than the {MAX_NESTING} \
+                         brackets JSON scenes load (about {} tree levels); write .ron, which \
+                         loads about {} levels",
+                        MAX_NESTING / 3,
+                        RON_RECURSION_LIMIT / 5
+                    ),
+                ));
+            }
+            Ok(text)
         })?,
-        SceneSyntax::Nff => super::nff::write_nff(model, Path::new("<scene>")),
+        SceneSyntax::Nff => super::nff::write_nff(model, source),
+    }
+}
+
+/// Levels of nesting that written scenes indent (`scene_to_string`);
+/// deeper values follow compactly. Indenting every level made a tree
+/// 40,000 levels deep, which loads, a file of billions of spaces (the
+/// indentation grows with the depth on each of a number of lines that
+/// grows with it too), and the conversion ran out of memory.
+pub const PRETTY_DEPTH: usize = 48;
+
+/// serde_json's pretty layout for the first `PRETTY_DEPTH` levels of
+/// nesting, its compact one below them (`scene_to_string`).
+#[derive(Default)]
+struct DepthCapped {
+    pretty: serde_json::ser::PrettyFormatter<'static>,
+    /// Arrays and objects open.
+    depth: usize,
+}
+
+impl DepthCapped {
+    /// Whether the innermost open container is laid out pretty.
+    fn inner_pretty(&self) -> bool {
+        self.depth <= PRETTY_DEPTH
+    }
+}
+
+/// Each call goes to the pretty formatter where the container it belongs
+/// to is pretty, else to the compact one; a container's opening and
+/// closing calls are taken at the same depth, so both go to the same one.
+impl serde_json::ser::Formatter for DepthCapped {
+    fn begin_array<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
+        self.depth += 1;
+        if self.inner_pretty() {
+            self.pretty.begin_array(w)
+        } else {
+            serde_json::ser::CompactFormatter.begin_array(w)
+        }
+    }
+
+    fn end_array<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
+        let pretty = self.inner_pretty();
+        self.depth -= 1;
+        if pretty {
+            self.pretty.end_array(w)
+        } else {
+            serde_json::ser::CompactFormatter.end_array(w)
+        }
+    }
+
+    fn begin_array_value<W: ?Sized + std::io::Write>(
+        &mut self,
+        w: &mut W,
+        first: bool,
+    ) -> std::io::Result<()> {
+        if self.inner_pretty() {
+            self.pretty.begin_array_value(w, first)
+        } else {
+            serde_json::ser::CompactFormatter.begin_array_value(w, first)
+        }
+    }
+
+    fn end_array_value<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
+        if self.inner_pretty() {
+            self.pretty.end_array_value(w)
+        } else {
+            Ok(())
+        }
+    }
+
+    fn begin_object<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
+        self.depth += 1;
+        if self.inner_pretty() {
+            self.pretty.begin_object(w)
+        } else {
+            serde_json::ser::CompactFormatter.begin_object(w)
+        }
+    }
+
+    fn end_object<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
+        let pretty = self.inner_pretty();
+        self.depth -= 1;
+        if pretty {
+            self.pretty.end_object(w)
+        } else {
+            serde_json::ser::CompactFormatter.end_object(w)
+        }
+    }
+
+    fn begin_object_key<W: ?Sized + std::io::Write>(
+        &mut self,
+        w: &mut W,
+        first: bool,
+    ) -> std::io::Result<()> {
+        if self.inner_pretty() {
+            self.pretty.begin_object_key(w, first)
+        } else {
+            serde_json::ser::CompactFormatter.begin_object_key(w, first)
+        }
+    }
+
+    fn begin_object_value<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
+        if self.inner_pretty() {
+            self.pretty.begin_object_value(w)
+        } else {
+            serde_json::ser::CompactFormatter.begin_object_value(w)
+        }
+    }
+
+    fn end_object_value<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
+        if self.inner_pretty() {
+            self.pretty.end_object_value(w)
+        } else {
+            Ok(())
+        }
     }
 }
 

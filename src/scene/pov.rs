@@ -197,9 +197,14 @@ struct PovWriter<'a> {
 }
 
 impl PovWriter<'_> {
+    /// Writes `text` on a line of its own, indented by its level of
+    /// nesting up to `load::PRETTY_DEPTH`, as the other scene writers do:
+    /// a tree that loads may be 48,000 levels deep, and indenting each of
+    /// its lines fully would take billions of spaces.
     fn line(&mut self, indent: usize, text: &str) {
+        let indent = 2 * indent.min(crate::scene::load::PRETTY_DEPTH);
         // Writing to a String cannot fail (here and below).
-        let _ = writeln!(self.out, "{:indent$}{text}", "", indent = 2 * indent);
+        let _ = writeln!(self.out, "{:indent$}{text}", "");
     }
 
     fn header(&mut self, model: &SceneFile, source: &Path) {

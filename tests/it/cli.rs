@@ -1148,3 +1148,27 @@ fn scale_writes_the_table_csv_and_plot() {
     let img = image::open(tmp.path().join("out/scaling.png")).expect("the plot");
     assert!(img.width() > 100 && img.height() > 100);
 }
+
+/// A reader that stops early (`hypercast inspect scene.ron | head`) is no
+/// failure: `inspect` printed its report with `println!`, which panicked
+/// on the closed pipe. Now it exits 0 and still writes its overlay. The
+/// pipe's reading end is closed before the run starts, so every write to
+/// standard output meets it closed.
+#[test]
+fn a_closed_standard_output_ends_no_report_early() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = util::repo("scenes/small/sphere.ron");
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let o = Command::new(BIN)
+        .args(["inspect", path_str(&scene), "--overlay", "o.png"])
+        .current_dir(tmp.path())
+        .env("RUST_BACKTRACE", "1")
+        .stdout(writer)
+        .stderr(Stdio::piped())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{:?}: {}", o.status, stderr(&o));
+    assert!(!stderr(&o).contains("panicked"), "{}", stderr(&o));
+    assert!(tmp.path().join("o.png").is_file(), "the overlay is written");
+}

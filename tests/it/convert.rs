@@ -204,3 +204,56 @@ fn random_csg_models_round_trip_through_ron_and_json_exactly() {
         }
     }
 }
+
+/// A tree deeper than indentation can follow: 34,000 levels load from RON
+/// (`scene::load::MAX_NESTING`), and were written indented level by level.
+/// The POV writer then asked `format!` for an indentation beyond its limit
+/// and panicked; the RON and JSON writers ran out of memory on billions of
+/// spaces. Now each indents the first levels only, RON reads back to the
+/// same model, and JSON, which loads fewer levels, is refused by name.
+#[test]
+fn a_tree_thousands_of_levels_deep_converts_in_linear_size() {
+    const LEVELS: usize = 34_000;
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("deep.ron");
+    let text = format!(
+        "(camera: (eye: (0, -5, 0), look_at: (0, 0, 0), fov_y: 45, width: 8, height: 6), \
+         lights: [(position: (2, -2, 2), color: (1, 1, 1))], objects: [{}Sphere(center: \
+         (0, 0, 0), radius: 0.5){}])",
+        "Difference(children: [Sphere(center: (0, 0, 0), radius: 1), ".repeat(LEVELS),
+        "])".repeat(LEVELS)
+    );
+    std::fs::write(&scene, text).unwrap();
+    for (out, bytes_per_level) in [("deep.pov", 500), ("back.ron", 200)] {
+        ok(tmp.path(), &["convert", "deep.ron", "-o", out, "-q"]);
+        let written = std::fs::metadata(tmp.path().join(out)).unwrap().len();
+        assert!(
+            written < (bytes_per_level * LEVELS) as u64,
+            "{out}: {written} bytes for {LEVELS} levels"
+        );
+    }
+    // Compared and dropped on a stack as deep as the loader's: both recurse
+    // through the tree.
+    let dir = tmp.path().to_owned();
+    let same = std::thread::Builder::new()
+        .stack_size(hypercast::scene::load::LOAD_STACK_BYTES)
+        .spawn(move || {
+            let read = |p: &str| {
+                let text = std::fs::read_to_string(dir.join(p)).unwrap();
+                let syntax = hypercast::scene::SceneSyntax::Ron;
+                hypercast::scene::load::parse_model_str(&text, syntax, p.as_ref()).unwrap()
+            };
+            read("deep.ron") == read("back.ron")
+        })
+        .unwrap()
+        .join()
+        .unwrap();
+    assert!(same, "RON round trip");
+    let empty = tempfile::tempdir().unwrap();
+    let problems = check_refusal(
+        empty.path(),
+        &["convert", path_str(&scene), "-o", "deep.json"],
+        "deep.ron: objects: JSON cannot hold this tree",
+    );
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
