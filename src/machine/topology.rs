@@ -7,6 +7,7 @@ use std::path::Path;
 use serde::Deserialize;
 
 use crate::error::{Error, Result};
+use crate::scene::load::fmt_num;
 
 /// The built-in default topology (`topology/ipsc-d5.ron`).
 pub const IPSC_D5: &str = include_str!("../../topology/ipsc-d5.ron");
@@ -102,23 +103,22 @@ pub fn parse_topology(text: &str, file: &Path) -> Result<Topology> {
         ));
     }
     let node_memory = parse_size(&t.node_memory).map_err(|m| bad("node_memory", m))?;
-    let positive = |field: &str, v: f64| -> Result<f64> {
-        if v.is_finite() && v > 0.0 {
+    // Each value within a range wide enough for any machine worth
+    // modelling and narrow enough that the virtual time of any run stays a
+    // number: a compute speed of 1e-300 made it 2.5e296 s, a latency of
+    // 1.7e308 made it infinite and `scale`'s virtual speedups NaN.
+    let within = |field: &str, v: f64, (lo, hi): (f64, f64)| -> Result<f64> {
+        if (lo..=hi).contains(&v) {
             Ok(v)
         } else {
             Err(bad(
                 field,
-                format!("{field} must be a finite number > 0, got {v}"),
-            ))
-        }
-    };
-    let non_negative = |field: &str, v: f64| -> Result<f64> {
-        if v.is_finite() && v >= 0.0 {
-            Ok(v)
-        } else {
-            Err(bad(
-                field,
-                format!("{field} must be a finite number >= 0, got {v}"),
+                format!(
+                    "{field} must be between {} and {}, got {}",
+                    fmt_num(lo),
+                    fmt_num(hi),
+                    fmt_num(v)
+                ),
             ))
         }
     };
@@ -126,21 +126,37 @@ pub fn parse_topology(text: &str, file: &Path) -> Result<Topology> {
         name: t.name,
         dimension: t.dimension,
         node_memory,
-        link_bandwidth: positive(
+        link_bandwidth: within(
             "link_bandwidth_bytes_per_second",
             t.link_bandwidth_bytes_per_second,
+            BANDWIDTH_RANGE,
         )?,
-        link_latency: non_negative("link_latency_seconds", t.link_latency_seconds)?,
-        message_overhead: non_negative("message_overhead_seconds", t.message_overhead_seconds)?,
-        compute_speed: positive("compute_speed", t.compute_speed)?,
+        link_latency: within("link_latency_seconds", t.link_latency_seconds, TIME_RANGE)?,
+        message_overhead: within(
+            "message_overhead_seconds",
+            t.message_overhead_seconds,
+            TIME_RANGE,
+        )?,
+        compute_speed: within("compute_speed", t.compute_speed, SPEED_RANGE)?,
     })
 }
 
+/// A node's speed relative to one host core (`compute_speed`): from a
+/// trillion times slower to a trillion times faster.
+const SPEED_RANGE: (f64, f64) = (1e-12, 1e12);
+/// A link's bandwidth, bytes per second.
+const BANDWIDTH_RANGE: (f64, f64) = (1.0, 1e18);
+/// A link's latency and a message's overhead, seconds: up to some eleven
+/// days each.
+const TIME_RANGE: (f64, f64) = (0.0, 1e6);
+
 /// Parses a memory size: `4.5MiB`, `512KiB`, `2GiB`, `1MB` (= MiB, the
-/// paper's megabytes), or plain bytes.
+/// paper's megabytes), `1e3KiB`, or plain bytes.
 pub fn parse_size(s: &str) -> std::result::Result<u64, String> {
     let t = s.trim();
-    let split = t.find(|c: char| c.is_ascii_alphabetic()).unwrap_or(t.len());
+    // The unit is the letters at the end, so that an exponent's `e` is
+    // read as part of the number.
+    let split = t.trim_end_matches(|c: char| c.is_ascii_alphabetic()).len();
     let (num, unit) = t.split_at(split);
     let value: f64 = num.trim().parse().map_err(|_| {
         format!("bad memory size {s:?}: expected a number with KiB, MiB, GiB or no unit")
@@ -178,6 +194,10 @@ mod tests {
         assert!(parse_size("-1MiB").is_err());
         assert!(parse_size("4.5 parsecs").is_err());
         assert!(parse_size("").is_err());
+        // An exponent is part of the number, not a unit.
+        assert_eq!(parse_size("1e3KiB"), Ok(1_024_000));
+        let e = parse_size("1e30MiB").unwrap_err();
+        assert!(e.contains("between 1 byte and 1 PB"), "{e}");
     }
 
     #[test]
@@ -206,5 +226,40 @@ mod tests {
         assert!(e.contains("compute_speed"), "{e}");
         let text = IPSC_D5.replace("dimension: 5", "dimension: 40");
         assert!(parse_topology(&text, Path::new("t.ron")).is_err());
+    }
+
+    /// Values that would make the virtual time of a run astronomical,
+    /// infinite or NaN are refused with their range.
+    #[test]
+    fn topology_values_stay_in_ranges_that_keep_virtual_time_a_number() {
+        for (from, to, want) in [
+            (
+                "compute_speed: 0.0000625",
+                "compute_speed: 1e-300",
+                "compute_speed must be between 1e-12 and 1e12, got 1e-300",
+            ),
+            (
+                "link_latency_seconds: 0.00005",
+                "link_latency_seconds: 1.7e308",
+                "link_latency_seconds must be between 0 and 1000000, got 1.7e308",
+            ),
+            (
+                "link_bandwidth_bytes_per_second: 1250000.0",
+                "link_bandwidth_bytes_per_second: 0.5",
+                "link_bandwidth_bytes_per_second must be between 1 and 1e18, got 0.5",
+            ),
+            (
+                "message_overhead_seconds: 0.001",
+                "message_overhead_seconds: -0.001",
+                "message_overhead_seconds must be between 0 and 1000000, got -0.001",
+            ),
+        ] {
+            let text = IPSC_D5.replace(from, to);
+            assert_ne!(text, IPSC_D5, "{from}");
+            let e = parse_topology(&text, Path::new("t.ron"))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(want), "{e}");
+        }
     }
 }

@@ -1492,11 +1492,17 @@ fn fmt_vec(v: Vector) -> String {
     format!("({}, {}, {})", fmt_num(v[0]), fmt_num(v[1]), fmt_num(v[2]))
 }
 
-/// A number as the shorter of its plain and its exponent form: `5`, `0.25`,
-/// `1e-300` (not three hundred digits), `1e20`.
-fn fmt_num(x: f64) -> String {
-    let (plain, exp) = (format!("{x}"), format!("{x:?}"));
-    if plain.len() <= exp.len() { plain } else { exp }
+/// A number as messages write it: plain up to seven characters (`5`,
+/// `0.25`, `1000000`), else the shortest of its plain and exponent forms
+/// (`1e-300`, not three hundred digits; `1e12`, `1234567.5`).
+pub(crate) fn fmt_num(x: f64) -> String {
+    let plain = format!("{x}");
+    if plain.len() <= 7 {
+        return plain;
+    }
+    [format!("{x:?}"), format!("{x:e}")]
+        .into_iter()
+        .fold(plain, |a, b| if b.len() < a.len() { b } else { a })
 }
 
 fn fmt_v3(v: Vec3) -> String {
@@ -1555,6 +1561,8 @@ mod tests {
             "up (0, 0, 1) is parallel to the view direction from eye to look_at (-1e-300, 0, -5)",
         );
         assert_eq!(fmt_vec([0.25, 1e20, -3.0]), "(0.25, 1e20, -3)");
+        assert_eq!(fmt_vec([1e6, 1e12, -2.5e-7]), "(1000000, 1e12, -2.5e-7)");
+        assert_eq!(fmt_num(1234567.5), "1234567.5");
     }
 
     #[track_caller]
