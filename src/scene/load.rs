@@ -1331,7 +1331,7 @@ impl<'m> Compiler<'m> {
                 && size < reach * MIN_CURVED_SIZE
             {
                 let world = if prim.transform.is_some() {
-                    format!(" ({size:.3e} or more in the world)")
+                    format!(" ({} or more in the world)", fmt_sig(size))
                 } else {
                     String::new()
                 };
@@ -1339,8 +1339,9 @@ impl<'m> Compiler<'m> {
                     place.path(),
                     format!(
                         "{kind} has a radius of {radius}{world} where its coordinates reach \
-                         {reach:.3e}: its surface is lost in their rounding (the radius must be at \
-                         least 2^-48 = {MIN_CURVED_SIZE:.1e} of them)"
+                         {}: its surface is lost in their rounding (the radius must be at \
+                         least 2^-48 = {MIN_CURVED_SIZE:.1e} of them)",
+                        fmt_sig(reach)
                     ),
                 ));
             }
@@ -1503,6 +1504,12 @@ pub(crate) fn fmt_num(x: f64) -> String {
     [format!("{x:?}"), format!("{x:e}")]
         .into_iter()
         .fold(plain, |a, b| if b.len() < a.len() { b } else { a })
+}
+
+/// `x` to four significant digits, written as `fmt_num` writes it
+/// (`0.9254`, `7.071e-16`).
+fn fmt_sig(x: f64) -> String {
+    fmt_num(format!("{x:.3e}").parse().unwrap_or(x))
 }
 
 fn fmt_v3(v: Vec3) -> String {
