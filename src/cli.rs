@@ -968,6 +968,7 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
         held as f64 / s.bytes.max(1) as f64
     )?;
     if let Err(e) = plan.check(&scene, &topo) {
+        let e = machine::host::advise(e, &scene, &topo, &mopts);
         outln!("does not fit: {e}")?;
     }
     report::stats::extend(

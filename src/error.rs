@@ -70,8 +70,14 @@ pub struct Refusal {
 /// What would make a refused share fit, besides more memory per node.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Remedy {
-    /// Any dimension above `dimension`.
-    MoreNodes { dimension: u32 },
+    /// More nodes than at `dimension`, the one refused: from `fits_at`
+    /// where that is known (the least larger dimension whose plan was
+    /// made and fits, `machine::host::Plan::check_advised`), else any
+    /// above.
+    MoreNodes {
+        dimension: u32,
+        fits_at: Option<u32>,
+    },
     /// Nothing else; `why` says why more nodes cannot help, unless there
     /// are no more (the largest dimension).
     MoreMemory { why: Option<String> },
@@ -85,12 +91,30 @@ impl std::fmt::Display for Refusal {
         write!(f, "{}; ", self.numbers)?;
         let memory = &self.memory;
         match (&self.remedy, self.among_dims) {
-            (Remedy::MoreNodes { dimension }, None) => write!(
+            (
+                Remedy::MoreNodes {
+                    fits_at: Some(d), ..
+                },
+                None,
+            ) => write!(
+                f,
+                "use --dim {d} (the fewest nodes that fit) or --node-memory {memory}"
+            ),
+            (
+                Remedy::MoreNodes {
+                    fits_at: Some(d), ..
+                },
+                Some(_),
+            ) => write!(
+                f,
+                "start --dims at {d} (the fewest nodes that fit) or use --node-memory {memory}"
+            ),
+            (Remedy::MoreNodes { dimension, .. }, None) => write!(
                 f,
                 "use --dim {} or more, or --node-memory {memory}",
                 dimension + 1
             ),
-            (Remedy::MoreNodes { dimension }, Some(_)) => {
+            (Remedy::MoreNodes { dimension, .. }, Some(_)) => {
                 write!(
                     f,
                     "start --dims above {dimension}, or --node-memory {memory}"

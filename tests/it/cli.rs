@@ -960,7 +960,8 @@ fn scale_refuses_a_dimension_that_does_not_fit_and_writes_nothing() {
     // Its hint speaks of --dims, which scale takes, not --dim.
     let err = stderr(&o);
     assert!(
-        err.contains("start --dims above 0, or --node-memory") && !err.contains("--dim "),
+        err.contains("start --dims at 4 (the fewest nodes that fit) or use --node-memory")
+            && !err.contains("--dim "),
         "{err}"
     );
     args.extend(["--out", "out"]);

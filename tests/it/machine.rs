@@ -590,17 +590,54 @@ fn a_refusal_names_what_would_fit() {
     let (_, stats, _) = machine::render(&scene, &on(2, bytes), &o, &|_| {})
         .unwrap_or_else(|e| panic!("with the named {named}: {e}"));
     check_stats(&scene, &stats);
-    // Where more nodes help, they are named first.
+    // Where more nodes help, the fewest that fit are named first.
     let flake = load_scene(&repo("scenes/sphereflake4.nff")).unwrap();
     let e = machine::render(&flake, &topo(0), &o, &|_| {}).expect_err("refused at d = 0");
-    assert!(e.to_string().contains("use --dim 1 or more"), "{e}");
+    assert!(
+        e.to_string()
+            .contains("use --dim 1 (the fewest nodes that fit) or --node-memory"),
+        "{e}"
+    );
     let Error::Capacity(r) = e else {
         panic!("not a capacity error: {e}")
     };
     assert!(
-        matches!(r.remedy, Remedy::MoreNodes { dimension: 0 }),
+        matches!(
+            r.remedy,
+            Remedy::MoreNodes {
+                dimension: 0,
+                fits_at: Some(1)
+            }
+        ),
         "{r:?}"
     );
+    machine::render(&flake, &topo(1), &o, &|_| {}).expect("the dimension named fits");
+    // The advice holds for the random scene: the dimension it names fits
+    // and the one below does not; the dimensions it says do not fit, do
+    // not. (`Plan::check` alone judged by the refused plan's worst node,
+    // and named the next dimension, where it may not fit.)
+    for (d, kib) in [(0, 256), (0, 512), (2, 512)] {
+        let msg = refusal(&on(d, kib << 10));
+        let fits = |d: u32| machine::render(&scene, &on(d, kib << 10), &o, &|_| {}).is_ok();
+        assert!(
+            msg.contains("use --dim ") != msg.contains("not fit either"),
+            "{msg}"
+        );
+        if let Some(rest) = msg.split("use --dim ").nth(1) {
+            let named: u32 = rest.split(' ').next().unwrap().parse().unwrap();
+            assert!(named > d && fits(named), "{msg}");
+            assert!(named == d + 1 || !fits(named - 1), "{msg}");
+        } else {
+            // The last number before it: `d = 1 and d = 2`, `d = 1 to 3`.
+            let before = msg.split("not fit either").next().unwrap();
+            let to: u32 = before
+                .split(|c: char| !c.is_ascii_digit())
+                .rfind(|n| !n.is_empty())
+                .and_then(|n| n.parse().ok())
+                .unwrap_or_else(|| panic!("{msg}"));
+            assert!((d + 1..=to).all(|t| !fits(t)), "{msg}");
+        }
+    }
     // A run over several dimensions names the one refused and asks for
     // more nodes in its own option.
     let among = Refusal {
@@ -611,7 +648,7 @@ fn a_refusal_names_what_would_fit() {
     assert!(
         among.starts_with("at d = 0: node 0 needs")
             && among.ends_with(&format!(
-                "; start --dims above 0, or --node-memory {}",
+                "; start --dims at 1 (the fewest nodes that fit) or use --node-memory {}",
                 r.memory
             ))
             && !among.contains("--dim "),
