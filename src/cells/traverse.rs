@@ -668,6 +668,45 @@ pub struct CellTracer<'a> {
     /// search over a share's thousands of primitives was a third of a
     /// node's own time per path (`--dim 1`, sphereflake).
     local_cache: [(u32, Option<PrimId>); LOCAL_CACHE],
+    /// The scene's lights by x, for `light_at_end`.
+    lights: LightsByX,
+}
+
+/// The scene's lights sorted by x, so that the light a shadow ray ends
+/// at is found by a binary search, not a scan: a scene of 2,000 lights
+/// shoots 2,000 shadow rays per hit, and the scan made its `--dim 0`
+/// render take 26 s where Roth took 0.39 s.
+struct LightsByX {
+    /// `(x, index)` of every light, by x, then index.
+    order: Vec<(f64, u32)>,
+    /// The largest magnitude of a light's coordinate.
+    reach: f64,
+}
+
+impl LightsByX {
+    fn new(scene: &Scene) -> LightsByX {
+        let mut order: Vec<(f64, u32)> = (scene.lights.iter())
+            .enumerate()
+            .map(|(i, l)| (l.position.x, i as u32))
+            .collect();
+        order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let reach = (scene.lights.iter())
+            .map(|l| l.position.abs().max_element())
+            .fold(0.0, f64::max);
+        LightsByX { order, reach }
+    }
+
+    /// The lights whose x lies within `window` of `x`, in index order.
+    fn near(&self, x: f64, window: f64) -> impl Iterator<Item = usize> + '_ {
+        let lo = self.order.partition_point(|&(lx, _)| lx < x - window);
+        let mut near: smallvec::SmallVec<[usize; 4]> = self.order[lo..]
+            .iter()
+            .take_while(|&&(lx, _)| lx <= x + window)
+            .map(|&(_, i)| i as usize)
+            .collect();
+        near.sort_unstable();
+        near.into_iter()
+    }
 }
 
 /// Entries of `CellTracer::local_cache`.
@@ -721,6 +760,7 @@ impl<'a> CellTracer<'a> {
             leaving: None,
             leaving_here: None,
             local_cache: [(u32::MAX, None); LOCAL_CACHE],
+            lights: LightsByX::new(scene),
         }
     }
 
@@ -1251,20 +1291,27 @@ impl CellTracer<'_> {
     /// its direction (for a shadow ray, the light's position less the
     /// ray's origin), if it ends at one, with how far from the light its
     /// end may be and still be taken to end there.
+    ///
+    /// The nearest light, if within its tolerance: of the lights in index
+    /// order, the first at the least distance. Only those whose x lies
+    /// within twice the largest tolerance of the end's are looked at
+    /// (`LightsByX`): a light farther off is farther than its own
+    /// tolerance, and so are all lights if it is the nearest, so either
+    /// way it changes nothing.
     fn light_at_end(&self, ray: &Ray, t_max: f64) -> Option<(usize, f64)> {
         if !t_max.is_finite() {
             return None;
         }
         let end = ray.at(t_max);
+        let from = ray.origin.abs().max_element();
+        let window = 2e-9 * (self.lights.reach + from);
         let (i, d2) = self
-            .scene
             .lights
-            .iter()
-            .map(|l| (l.position - end).length_squared())
-            .enumerate()
+            .near(end.x, window)
+            .map(|i| (i, (self.scene.lights[i].position - end).length_squared()))
             .min_by(|a, b| a.1.total_cmp(&b.1))?;
         let at = self.scene.lights[i].position;
-        let tol = 1e-9 * (at.abs().max_element() + ray.origin.abs().max_element());
+        let tol = 1e-9 * (at.abs().max_element() + from);
         (d2 <= tol * tol).then_some((i, tol))
     }
 
@@ -1834,5 +1881,78 @@ impl Tracer for CellTracer<'_> {
                 slot.1
             });
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::{SceneSyntax, parse_scene_str};
+
+    /// `light_at_end` by its binary search (`LightsByX`) names the light
+    /// the scan over all lights named: the nearest, the first of equals,
+    /// if within its tolerance. Lights at every scale, repeated, and a
+    /// hair apart; ends at lights, near them, and anywhere.
+    #[test]
+    fn the_light_a_shadow_ray_ends_at_is_the_scans() {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut lights = Vec::new();
+        for k in 0..300 {
+            let scale = [1.0, 1e-6, 1e6, 1e12][k % 4];
+            let p = [next(), next(), next()].map(|c| (c - 0.5) * scale);
+            lights.push(p);
+            if k % 7 == 0 {
+                lights.push(p);
+            }
+            if k % 11 == 0 {
+                lights.push([p[0] * (1.0 + 1e-12), p[1], p[2]]);
+            }
+        }
+        let text = format!(
+            "(camera: (eye: (0, -6, 0.5), look_at: (0, 0, 0), fov_y: 40, width: 16, height: 12), \
+             lights: [{}], objects: [Sphere(center: (0, 0, 0), radius: 1)])",
+            lights
+                .iter()
+                .map(|p| format!(
+                    "(position: ({:e}, {:e}, {:e}), color: (1, 1, 1))",
+                    p[0], p[1], p[2]
+                ))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        let scene = parse_scene_str(&text, SceneSyntax::Ron, "lights.ron".as_ref()).unwrap();
+        let cs = CellStructure::build(&scene, 16, 12, Default::default()).unwrap();
+        let tracer = CellTracer::new(&cs, &scene);
+        let scan = |ray: &Ray, t_max: f64| {
+            let end = ray.at(t_max);
+            let (i, d2) = (scene.lights.iter())
+                .map(|l| (l.position - end).length_squared())
+                .enumerate()
+                .min_by(|a, b| a.1.total_cmp(&b.1))?;
+            let at = scene.lights[i].position;
+            let tol = 1e-9 * (at.abs().max_element() + ray.origin.abs().max_element());
+            (d2 <= tol * tol).then_some((i, tol))
+        };
+        let mut found = 0;
+        for k in 0..20_000 {
+            let origin = Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5) * 4.0;
+            let target = scene.lights[k % scene.lights.len()].position;
+            let aim = match k % 3 {
+                0 => target,
+                1 => target * (1.0 + (next() - 0.5) * 1e-8),
+                _ => Vec3::new(next(), next(), next()) * 10.0,
+            };
+            let ray = Ray::new(origin, aim - origin);
+            let want = scan(&ray, 1.0);
+            assert_eq!(tracer.light_at_end(&ray, 1.0), want, "ray {k}: {ray:?}");
+            found += usize::from(want.is_some());
+        }
+        assert!(found > 6_000, "{found} rays end at a light");
     }
 }

@@ -1049,3 +1049,48 @@ fn whole_replicas_refuse_a_scene_no_node_holds() {
     );
     assert_eq!(e.exit_code(), 2);
 }
+
+/// A scene of many lights: every path holds a shadow ray per light, so a
+/// path in flight, which each node keeps room for per node, grows with
+/// them. The refusal says that more nodes need more of that room (it
+/// spoke of the cells' skeleton, a hundredth of it), the memory it names
+/// renders the image Roth renders, and so do the plain cells.
+#[test]
+fn a_scene_of_many_lights_is_refused_for_its_paths_and_renders_as_roth() {
+    let lights: Vec<String> = (0..400)
+        .map(|k| {
+            let (x, y) = ((k % 20) as f64 * 0.5 - 5.0, (k / 20) as f64 * 0.5 - 5.0);
+            format!("(position: ({x}, {y}, 4), color: (0.004, 0.004, 0.004))")
+        })
+        .collect();
+    let scene = crate::util::scene(&format!(
+        "(camera: (eye: (0, -6, 2), look_at: (0, 0, 0), fov_y: 45, width: 16, height: 12), \
+         lights: [{}], materials: {{\"glass\": (transmit: 0.4, reflect: 0.2, ior: 1.3)}}, \
+         objects: [Sphere(center: (0, 0, 0.5), radius: 1, material: \"glass\"), \
+         Box(min: (-3, -3, -1), max: (3, 3, -0.5))])",
+        lights.join(", ")
+    ));
+    let o = MachineOptions::new(16, 12, 1);
+    let small = topo(5).with_overrides(None, Some(1 << 20)).unwrap();
+    let msg = match machine::render(&scene, &small, &o, &|_| {}) {
+        Err(Error::Capacity(r)) => r.to_string(),
+        other => panic!("not refused: {:?}", other.map(|_| ())),
+    };
+    assert!(
+        msg.contains("at d = 6 one path in flight per node would need")
+            && !msg.contains("skeleton"),
+        "{msg}"
+    );
+    let named = msg.rsplit("--node-memory ").next().unwrap();
+    let bytes = machine::parse_size(named).unwrap();
+    let roth = crate::util::roth(&scene, 16, 12).0;
+    let (film, _, _) = machine::render(
+        &scene,
+        &small.with_overrides(None, Some(bytes)).unwrap(),
+        &o,
+        &|_| {},
+    )
+    .unwrap_or_else(|e| panic!("with the named {named}: {e}"));
+    assert_eq!(differing(&film, &roth), 0);
+    assert_eq!(differing(&cells(&scene, 16, 12).0, &roth), 0);
+}
