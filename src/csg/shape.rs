@@ -163,7 +163,8 @@ impl Primitive {
     /// the hit, is a triangle or polygon, met on its exact plane; a sphere,
     /// and an ellipsoid on the coordinate axes, met with their exact power
     /// (`sphere_hits`, `ellipsoid_hits`); and the side (`part`) of a
-    /// cylinder or cone (`far_cylinder_roots`, `far_cone_roots`). A
+    /// cylinder or cone (`far_cylinder_roots`, `far_cone_roots`) and of an
+    /// elliptic drum along an axis of its map (`mapped_cylinder_hits`). A
     /// cylinder or cone otherwise combines distances along and from its
     /// axis that the hit's distance from its base and its height bound
     /// (`axial_size`), which for a disc of radius 1e20 are far below its
@@ -202,6 +203,20 @@ impl Primitive {
                     && shape
                         .side_radius()
                         .is_some_and(|r| r > FAR_REACH * p.abs().max_element()) =>
+            {
+                0.0
+            }
+            // An elliptic drum's side as wide against its hit: met with
+            // its exact power (`mapped_cylinder_hits`).
+            (
+                &Shape::Cylinder {
+                    base, top, radius, ..
+                },
+                Some(m),
+            ) if part == SIDE
+                && elliptic_drum(m, base, top).is_some_and(|(s, across)| {
+                    radius * (s * across).abs().max_element() > FAR_REACH * p.abs().max_element()
+                }) =>
             {
                 0.0
             }
@@ -267,7 +282,8 @@ impl Primitive {
         match (&self.transform, &self.shape) {
             (None, shape) => intersect_shape(shape, ray),
             (Some(m), &Shape::Sphere { center, radius }) => ellipsoid_hits(ray, m, center, radius),
-            (Some(m), shape) => intersect_shape(shape, &m.inverse_ray(ray)),
+            (Some(m), shape @ Shape::Cylinder { .. }) => mapped_cylinder_hits(ray, m, shape),
+            (Some(m), shape) => mapped_hits(ray, m, shape),
         }
     }
 
@@ -1138,11 +1154,9 @@ fn ellipsoid_hits(ray: &Ray, m: &Affine, center: Vec3, radius: f64) -> PrimHits 
     }
 }
 
-/// `ellipsoid_hits`' roots with the object-space power exact: with
-/// `u_k = o_k − T_k − s_k·c_k` (the origin's offset from the centre in the
-/// world, exact) and `P = s_0·s_1·s_2`, the power is
-/// `(Σ_k (u_k·P/s_k)² − (r·P)²) / P²`, its numerator exact and rounded
-/// once. Where a term overflows, the roots given.
+/// `ellipsoid_hits`' roots with the object-space power exact
+/// (`exact_mapped_power` over all three axes); where a term overflows,
+/// the roots given.
 #[cold]
 #[inline(never)]
 fn far_ellipsoid_roots(
@@ -1152,35 +1166,115 @@ fn far_ellipsoid_roots(
     (center, radius): (Vec3, f64),
     (f, d): (Vec3, Vec3),
 ) -> Roots {
+    match exact_mapped_power(ray.origin, m, s, (center, radius), 0b111) {
+        Some(c) => circle_roots_with(f, d, radius, c),
+        None => circle_roots(f, d, radius),
+    }
+}
+
+/// Any other shape under a map, met in its own space. Out of line, as
+/// the map's arithmetic was before `mapped_cylinder_hits` made the
+/// compiler take it into `Primitive::intersect`, where it cost the
+/// jagged ball's boxes under rotations 0.6% more instructions.
+#[inline(never)]
+fn mapped_hits(ray: &Ray, m: &Affine, shape: &Shape) -> PrimHits {
+    intersect_shape(shape, &m.inverse_ray(ray))
+}
+
+/// A cylinder under a map (an elliptic drum, where the map is a scale
+/// that is not uniform), met in its own space as every mapped shape is.
+/// Where the map keeps the coordinate axes, the cylinder's axis is one of
+/// them, and its side reaches far beyond either hit (a ground of
+/// semi-axes 1e20 under a scene of size 1), the side's roots are taken
+/// again with the object-space power over the other two axes exact
+/// (`exact_mapped_power`), as the ellipsoid's are (`ellipsoid_hits`).
+/// Out of line, as that is.
+#[inline(never)]
+fn mapped_cylinder_hits(ray: &Ray, m: &Affine, shape: &Shape) -> PrimHits {
+    let &Shape::Cylinder {
+        base,
+        top,
+        radius,
+        capped,
+    } = shape
+    else {
+        return mapped_hits(ray, m, shape);
+    };
+    let local = m.inverse_ray(ray);
+    cylinder_hits_with(
+        &local,
+        (base, top),
+        radius,
+        capped,
+        |t0, t1, f_perp, d_perp| {
+            let (s, across) = elliptic_drum(m, base, top)?;
+            let reach = radius * (s * across).abs().max_element();
+            if !reaches_far(reach, ray, t0, t1) {
+                return None;
+            }
+            let axes = across.cmpne(Vec3::ZERO).bitmask();
+            let c = exact_mapped_power(ray.origin, m, s, (base, radius), axes)?;
+            Some(circle_roots_with(f_perp, d_perp, radius, c))
+        },
+    )
+}
+
+/// The scales of `m`, and a mask (1 on the two axes across, 0 along) of a
+/// cylinder from `base` to `top` under it, where `m` keeps the coordinate
+/// axes and the cylinder lies along one of them: the elliptic drums whose
+/// side `mapped_cylinder_hits` can meet exactly.
+fn elliptic_drum(m: &Affine, base: Vec3, top: Vec3) -> Option<(Vec3, Vec3)> {
+    let along = (top - base).cmpne(Vec3::ZERO);
+    (along.bitmask().count_ones() == 1)
+        .then(|| m.axis_scales())
+        .flatten()
+        .map(|s| (s, Vec3::select(along, Vec3::ZERO, Vec3::ONE)))
+}
+
+/// `Σ_k ((o_k − T_k)/s_k − c_k)² − r²` over the axes `k` whose bits are
+/// set in `axes`: the power, in the space of the map `x ↦ s·x + T`, of
+/// the world point `o` with respect to the sphere or circle of centre `c`
+/// and radius `r` there. Evaluated exactly from the file's own numbers
+/// and rounded once: with `u_k = o_k − T_k − s_k·c_k` (the offset from the
+/// centre in the world, exact) and `P` the product of those axes' scales,
+/// it is `(Σ_k (u_k·P/s_k)² − (r·P)²) / P²`. Mapping `o` first rounds
+/// `o − T` by ε of the reach, and the power then cancels as a sphere's
+/// does. None where a term overflows.
+fn exact_mapped_power(
+    o: Vec3,
+    m: &Affine,
+    s: Vec3,
+    (center, radius): (Vec3, f64),
+    axes: u32,
+) -> Option<f64> {
     use super::exact::Expansion;
+    let on: Vec<usize> = (0..3).filter(|k| axes & (1 << k) != 0).collect();
     let mut numerator = Expansion::default();
-    for k in 0..3 {
-        let mut u = Expansion::diff(ray.origin[k], m.translation[k]);
+    for &k in &on {
+        let mut u = Expansion::diff(o[k], m.translation[k]);
         u.add_f64_product(s[k], -center[k]);
         u.compress();
-        // u_k times the other two scales.
-        let mut w = Expansion::default();
-        w.add_scaled(&u, s[(k + 1) % 3]);
-        let mut uw = Expansion::default();
-        uw.add_scaled(&w, s[(k + 2) % 3]);
-        uw.compress();
-        numerator.add_product(&uw, &uw, 1.0);
+        // u_k times the other axes' scales.
+        for &j in on.iter().filter(|&&j| j != k) {
+            let mut w = Expansion::default();
+            w.add_scaled(&u, s[j]);
+            u = w;
+        }
+        u.compress();
+        numerator.add_product(&u, &u, 1.0);
     }
     let mut rp = Expansion::default();
-    rp.add_f64_product(radius, s[0]);
-    let mut rp2 = Expansion::default();
-    rp2.add_scaled(&rp, s[1]);
-    let mut rp3 = Expansion::default();
-    rp3.add_scaled(&rp2, s[2]);
-    rp3.compress();
-    numerator.add_product(&rp3, &rp3, -1.0);
-    let p = s[0] * s[1] * s[2];
-    let c = numerator.estimate() / (p * p);
-    if c.is_finite() {
-        circle_roots_with(f, d, radius, c)
-    } else {
-        circle_roots(f, d, radius)
+    rp.add_f64_product(radius, 1.0);
+    for &j in &on {
+        let mut w = Expansion::default();
+        w.add_scaled(&rp, s[j]);
+        rp = w;
     }
+    rp.compress();
+    numerator.add_product(&rp, &rp, -1.0);
+    let p: f64 = on.iter().map(|&j| s[j]).product();
+    let c = numerator.estimate() / (p * p);
+    c.is_finite().then_some(c)
 }
 
 /// `|o − centre|² − r²`, the power of `o` with respect to the sphere,
@@ -1352,6 +1446,28 @@ fn side_and_caps(
 /// roots are taken again with the power `|f⊥|² − r²` exact, as a
 /// sphere's are (`sphere_hits`, `far_cylinder_roots`).
 fn cylinder_hits(ray: &Ray, base: Vec3, top: Vec3, radius: f64, capped: bool) -> PrimHits {
+    cylinder_hits_with(
+        ray,
+        (base, top),
+        radius,
+        capped,
+        |t0, t1, f_perp, d_perp| {
+            reaches_far(radius, ray, t0, t1)
+                .then(|| far_cylinder_roots(ray, f_perp, d_perp, (base, top), radius))
+        },
+    )
+}
+
+/// `cylinder_hits`, with `far` asked for the side's roots again where
+/// f64 gave two, `t0` and `t1` (with `f⊥` and `d⊥`): `Some` replaces them.
+#[inline]
+fn cylinder_hits_with(
+    ray: &Ray,
+    (base, top): (Vec3, Vec3),
+    radius: f64,
+    capped: bool,
+    far: impl FnOnce(f64, f64, Vec3, Vec3) -> Option<Roots>,
+) -> PrimHits {
     let Some((a, _)) = unit_axis(base, top) else {
         return PrimHits::Miss;
     };
@@ -1363,9 +1479,9 @@ fn cylinder_hits(ray: &Ray, base: Vec3, top: Vec3, radius: f64, capped: bool) ->
     let d_perp = ray.dir - a * ray.dir.dot(a);
     let mut roots = circle_roots(f_perp, d_perp, radius);
     if let Roots::Two(t0, t1) = roots
-        && reaches_far(radius, ray, t0, t1)
+        && let Some(exact) = far(t0, t1, f_perp, d_perp)
     {
-        roots = far_cylinder_roots(ray, f_perp, d_perp, (base, top), radius);
+        roots = exact;
     }
     let side = match roots {
         Roots::None => return PrimHits::Miss,

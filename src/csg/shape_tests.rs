@@ -989,8 +989,9 @@ fn a_tilted_triangle_reaching_far_is_met_on_its_exact_plane() {
 /// `t` as the plane `z = 0` gives it (the drum is flat there to 1e-19), to
 /// 1e-14, and its spawned rays offset by no size. The f64 power `|f⊥|² −
 /// r²` was some ε·r² off, the hit ε·r (`shape::far_cylinder_roots`). The
-/// same of a lying cone as wide (`shape::far_cone_roots`) and of a flat
-/// ellipsoid (`shape::ellipsoid_hits`).
+/// same of a lying cone as wide (`shape::far_cone_roots`), of a flat
+/// ellipsoid (`shape::ellipsoid_hits`) and of a flat elliptic drum
+/// (`shape::mapped_cylinder_hits`).
 #[test]
 fn a_drum_cone_or_ellipsoid_reaching_far_is_met_on_its_exact_surface() {
     let mut unit = uniform(11);
@@ -1021,12 +1022,30 @@ fn a_drum_cone_or_ellipsoid_reaching_far_is_met_on_its_exact_surface() {
         );
         let ellipsoid = placed(sphere.clone(), &flat);
         assert!(ellipsoid.transform.is_some());
+        // An elliptic drum lying along x, flat as the ellipsoid.
+        let lying = Affine::from_srt(
+            v(far, far / 2.0, far / 64.0),
+            Vec3::ZERO,
+            v(0.0, 0.0, -far / 64.0),
+        );
+        let unit_drum = Shape::Cylinder {
+            base: v(-1.0, 0.0, 0.0),
+            top: v(1.0, 0.0, 0.0),
+            radius: 1.0,
+            capped: true,
+        };
+        let elliptic = placed(unit_drum, &lying);
+        assert!(elliptic.transform.is_some());
         let on_z0 = |o: Vec3, d: Vec3| -o.z / d.z;
         let on_slope = |o: Vec3, d: Vec3| (o.y - 64.0 * o.z) / (64.0 * d.z - d.y);
         // The `t` at which o + t·d meets the plane the ground is flat to.
         type PlaneT = fn(Vec3, Vec3) -> f64;
-        let grounds: [(&Primitive, PlaneT); 3] =
-            [(&drum, on_z0), (&cone, on_slope), (&ellipsoid, on_z0)];
+        let grounds: [(&Primitive, PlaneT); 4] = [
+            (&drum, on_z0),
+            (&cone, on_slope),
+            (&ellipsoid, on_z0),
+            (&elliptic, on_z0),
+        ];
         for (ground, plane_t) in grounds {
             for _ in 0..200 {
                 let o = v(unit() * 4.0 - 2.0, unit() * 4.0 - 2.0, 1.0 + unit() * 3.0);

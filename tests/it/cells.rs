@@ -1051,7 +1051,7 @@ fn compare_with_roth(
 pub(crate) fn on_far_ground(ron: &str, seed: u64) -> String {
     let far = 1e20f64;
     let tilted = |x: f64, z: f64| format!("({x:?}, {:?}, {z:?})", -8.0 + (x - z) / 64.0);
-    let ground = match seed % 5 {
+    let ground = match seed % 6 {
         0 => "Sphere(center: (0, -1000000000000008.0, 0), radius: 1e15)".to_string(),
         1 => format!(
             "Polygon(vertices: [{}, {}, {}])",
@@ -1068,6 +1068,11 @@ pub(crate) fn on_far_ground(ron: &str, seed: u64) -> String {
         4 => "Transform(translate: (0, -250000000000008.0, 0), scale: (1e15, 2.5e14, 1e15), \
               child: Sphere(center: (0, 0, 0), radius: 1))"
             .to_string(),
+        // An elliptic drum lying along z, of semi-axes 1e15 and 5e14
+        // across, its top at y = −8.
+        5 => "Transform(translate: (0, -500000000000008.0, 0), scale: (1e15, 5e14, 1e15), \
+              child: Cylinder(base: (0, 0, -1), top: (0, 0, 1), radius: 1))"
+            .to_string(),
         // A cone on the same axis, its radius 1e15 at the middle.
         _ => "Cone(base: (-1e15, -1000000000000008.0, -2e15), base_radius: 984375000000000.0, \
               top: (1e15, -1000000000000008.0, 2e15), top_radius: 1015625000000000.0)"
@@ -1082,10 +1087,11 @@ pub(crate) fn on_far_ground(ron: &str, seed: u64) -> String {
 
 /// Random CSG scenes on a ground reaching far beyond them, met by exact
 /// arithmetic (`csg::shape::on_plane`, `sphere_hits`,
-/// `far_cylinder_roots`, `far_cone_roots`, `ellipsoid_hits`): a sphere
-/// of radius 1e15 whose top is at `y = −8`, a polygon reaching 1e20
-/// tilted out of every coordinate plane, a lying drum and cone of radius
-/// 1e15, and an ellipsoid as large. Cells and
+/// `far_cylinder_roots`, `far_cone_roots`, `ellipsoid_hits`,
+/// `mapped_cylinder_hits`): a sphere of radius 1e15 whose top is at
+/// `y = −8`, a polygon reaching 1e20 tilted out of every coordinate plane,
+/// a lying drum and cone of radius 1e15, and an ellipsoid and an elliptic
+/// drum as large. Cells and
 /// Roth agree on every pixel, with
 /// mirrors, glass, lights and cameras inside, outside and behind the eye.
 #[test]

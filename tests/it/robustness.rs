@@ -999,6 +999,32 @@ fn an_ellipsoid_ground_of_semi_axes_1e45_shades_as_a_slab() {
     });
 }
 
+/// An elliptic drum of semi-axes 1e12 to 1e45 for a ground (a cylinder
+/// under a scale that is not uniform, kept in its own space), lying along
+/// x or y, its top at `z = 0`: flat and round-ish. Each shades as a slab,
+/// every pixel (`csg::shape::elliptic_drum_hits`). Before, mapping the
+/// ray's origin rounded it by ε of the reach and the side's power
+/// cancelled, as the ellipsoid's did.
+#[test]
+fn an_elliptic_drum_ground_of_semi_axes_1e45_shades_as_a_slab() {
+    assert_far_grounds_shade_as(slab_ground, |far| {
+        [
+            ("(0, -1, 0)", "(0, 1, 0)", (far, far, far / 64.0)),
+            ("(-1, 0, 0)", "(1, 0, 0)", (far, far / 2.0, far / 4.0)),
+            ("(0, 1, 0)", "(0, -1, 0)", (far / 8.0, far, far / 2.0)),
+        ]
+        .iter()
+        .map(|&(base, top, (sx, sy, sz))| {
+            format!(
+                "Transform(translate: (0, 0, {:?}), scale: ({sx:?}, {sy:?}, {sz:?}), \
+                     child: Cylinder(base: {base}, top: {top}, radius: 1)),",
+                -sz
+            )
+        })
+        .collect()
+    });
+}
+
 /// A lying drum of radius 1e12 to 1e45 for a ground, its top along a line
 /// through the origin at `z = 0`: a cylinder along y, one along a tilted
 /// horizontal axis, open or capped, and a cone of equal radii (NFF's open
