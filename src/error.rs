@@ -72,7 +72,7 @@ pub struct Refusal {
 pub enum Remedy {
     /// More nodes than at `dimension`, the one refused: from `fits_at`
     /// where that is known (the least larger dimension whose plan was
-    /// made and fits, `machine::host::Plan::check_advised`), else any
+    /// made and fits, `machine::host::advise`), else any
     /// above.
     MoreNodes {
         dimension: u32,

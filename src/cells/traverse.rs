@@ -1292,11 +1292,11 @@ impl CellTracer<'_> {
     /// end may be and still be taken to end there.
     ///
     /// The nearest light, if within its tolerance: of the lights in index
-    /// order, the first at the least distance. Only those whose x lies
-    /// within twice the largest tolerance of the end's are looked at
-    /// where there are many (`LightsByX`): a light farther off is farther than its own
-    /// tolerance, and so are all lights if it is the nearest, so either
-    /// way it changes nothing.
+    /// order, the first at the least distance. Where there are many
+    /// (`LightsByX`), only those whose x lies within twice the largest
+    /// tolerance of the end's are looked at: a light farther off is
+    /// farther than its own tolerance, and so are all lights if it is the
+    /// nearest, so either way it changes nothing.
     fn light_at_end(&self, ray: &Ray, t_max: f64) -> Option<(usize, f64)> {
         if !t_max.is_finite() {
             return None;
