@@ -70,10 +70,10 @@ pub struct Refusal {
 /// What would make a refused share fit, besides more memory per node.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Remedy {
-    /// More nodes than at `dimension`, the one refused: from `fits_at`
-    /// where that is known (the least larger dimension whose plan was
-    /// made and fits, `machine::host::advise`), else any
-    /// above.
+    /// More nodes than at `dimension`, the largest known not to fit (the
+    /// one refused, or the last that `machine::host::advise` planned):
+    /// from `fits_at` where that is known (the least larger dimension
+    /// whose plan was made and fits), else any above.
     MoreNodes {
         dimension: u32,
         fits_at: Option<u32>,

@@ -772,24 +772,29 @@ impl Plan {
 /// dimension tried, and only when refusing: 100,000 spheres refused at
 /// d = 5 take 9.8 s to be told `--dim 8`, against 3.7 s to be told
 /// `--dim 6 or more` by `check` alone (where d = 6 does not fit), and a
-/// peak of 1.5 GB against 0.7. Drop the refused plan first: the plans
-/// tried are larger.
+/// peak of 1.5 GB against 0.7. The plans made hold at most
+/// `ADVICE_NODES` nodes in all; where none of them fits and more nodes
+/// may still help, the advice names the next dimension after them,
+/// unchecked. Drop the refused plan
+/// first: the plans tried are larger.
 pub fn advise(e: Error, scene: &Scene, topo: &Topology, opts: &MachineOptions) -> Error {
     let refusal = match e {
         Error::Capacity(r) => r,
         e => return e,
     };
-    match advised(refusal, scene, topo, opts) {
+    match advised(refusal, scene, topo, opts, ADVICE_NODES) {
         Ok(r) => Error::Capacity(r),
         Err(e) => e,
     }
 }
 
+/// `advise`, its plans holding at most `max_nodes` nodes in all.
 fn advised(
     refusal: Refusal,
     scene: &Scene,
     topo: &Topology,
     opts: &MachineOptions,
+    max_nodes: u32,
 ) -> Result<Refusal> {
     let Remedy::MoreNodes {
         dimension: d,
@@ -798,7 +803,18 @@ fn advised(
     else {
         return Ok(refusal);
     };
+    // A plan's cost grows with its nodes (every share holds the skeleton
+    // of all cells): d = 10 alone took 16 s and 3 GB for 100,000
+    // primitives, so the plans made hold at most `max_nodes` nodes in
+    // all.
+    let mut last = d;
+    let mut nodes = 0u32;
     for tried in d + 1..=MAX_DIMENSION {
+        nodes += 1 << tried;
+        if nodes > max_nodes {
+            break;
+        }
+        last = tried;
         let t = topo.clone().with_overrides(Some(tried), None)?;
         let remedy = match Plan::new(scene, &t, opts)?.check(scene, &t) {
             Ok(()) => Remedy::MoreNodes {
@@ -831,8 +847,21 @@ fn advised(
         };
         return Ok(Refusal { remedy, ..refusal });
     }
-    Ok(refusal)
+    // None up to `last` fits, and more nodes may still help: the advice
+    // starts past what was planned.
+    Ok(Refusal {
+        remedy: Remedy::MoreNodes {
+            dimension: last,
+            fits_at: None,
+        },
+        ..refusal
+    })
 }
+
+/// Nodes that the plans `advise` makes may hold in all: from d = 0, the
+/// plans of d = 1 to 8; from d = 5, those of 6 to 8, where the 100,000
+/// spheres of the stress cases fit.
+const ADVICE_NODES: u32 = 512;
 
 /// Renders on the modelled machine, one pass of `opts.spp` samples per
 /// pixel. Errors: `Capacity` when a share does not fit a node (before any
@@ -1362,6 +1391,43 @@ impl Run {
 mod tests {
     use super::*;
     use crate::scene::load::{SceneSyntax, parse_scene_str};
+
+    /// Where the plans `advise` may make run out before one fits or one
+    /// says more nodes cannot help, the advice names the dimension after
+    /// the last planned, "or more", and none of those planned fits.
+    #[test]
+    fn advice_past_its_plans_names_the_next_dimension_unchecked() {
+        use crate::r#gen::random::{RandomCsgOptions, random_csg};
+        let model = random_csg(1, 2000, &RandomCsgOptions::default());
+        let (scene, _) =
+            crate::scene::load::compile_model(&model, std::path::Path::new("r.ron")).unwrap();
+        let opts = MachineOptions::new(32, 32, 1);
+        let on = |d: u32| {
+            Topology::ipsc_d5()
+                .with_overrides(Some(d), Some(300 << 10))
+                .unwrap()
+        };
+        let refused = |d: u32| {
+            let t = on(d);
+            match Plan::new(&scene, &t, &opts).unwrap().check(&scene, &t) {
+                Err(Error::Capacity(r)) => r,
+                other => panic!("d = {d} not refused: {other:?}"),
+            }
+        };
+        // With room for the plans of d = 1 and 2 (2 + 4 nodes), not 3.
+        let r = advised(refused(0), &scene, &on(0), &opts, 6).unwrap();
+        assert_eq!(
+            r.remedy,
+            Remedy::MoreNodes {
+                dimension: 2,
+                fits_at: None
+            }
+        );
+        assert!(r.to_string().contains("use --dim 3 or more"), "{r}");
+        for d in [1, 2] {
+            refused(d);
+        }
+    }
 
     /// A refusal's sizes never read 0.00, and the memory it asks for,
     /// read back as `--node-memory` reads it, holds what was needed.
