@@ -521,6 +521,31 @@ pub fn progress_bar(total: u64, quiet: bool, what: &str) -> ProgressBar {
     pb
 }
 
+/// Runs `f` while a thread redraws `pb` four times a second, so that its
+/// clock runs while nothing advances it (the machine's planning). Where
+/// the bar is hidden, or the OS refuses the thread, `f` runs alone:
+/// indicatif's own steady tick would panic there.
+fn ticking<T>(pb: &ProgressBar, f: impl FnOnce() -> T) -> T {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    if pb.is_hidden() {
+        return f();
+    }
+    let done = AtomicBool::new(false);
+    std::thread::scope(|s| {
+        let _ticker = std::thread::Builder::new()
+            .name("hypercast-progress".into())
+            .spawn_scoped(s, || {
+                while !done.load(Ordering::Relaxed) {
+                    pb.tick();
+                    std::thread::sleep(std::time::Duration::from_millis(250));
+                }
+            });
+        let out = f();
+        done.store(true, Ordering::Relaxed);
+        out
+    })
+}
+
 /// What a render gave, whoever rendered it.
 struct RenderOutcome {
     film: crate::trace::Film,
@@ -574,9 +599,21 @@ fn run_render(a: RenderArgs) -> Result<()> {
         }
         Some((topo, mopts)) => {
             let samples = job.opts.width as u64 * job.opts.height as u64 * job.opts.spp as u64;
-            let pb = progress_bar(samples, job.quiet, "render");
-            let progress = |n: u64| pb.inc(n);
-            let result = machine::render_adaptive(&job.scene, topo, mopts, job.adaptive, &progress);
+            // The bar says "plan" while the machine is planned (a build,
+            // the mapping's pre-pass, and, for a share that does not fit,
+            // the plans of larger dimensions: 10 s and more for 100,000
+            // primitives), its clock running, and "render" from the first
+            // sample on.
+            let pb = progress_bar(samples, job.quiet, "plan");
+            let progress = |n: u64| {
+                if pb.position() == 0 {
+                    pb.set_prefix("render");
+                }
+                pb.inc(n)
+            };
+            let result = ticking(&pb, || {
+                machine::render_adaptive(&job.scene, topo, mopts, job.adaptive, &progress)
+            });
             pb.finish_and_clear();
             let (film, ms, cs, aa) = result?;
             RenderOutcome {
