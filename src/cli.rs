@@ -1084,8 +1084,11 @@ fn run_scale(a: ScaleArgs) -> Result<()> {
         .options(width, height, a.spp, SegmentChoice::default())?;
     let runs = dims.len() as u64 * (a.repeat as u64 + 1);
     let pb = progress_bar(runs, a.quiet, "scale");
-    let rows = report::scale::measure(&scene, &topo, &dims, a.repeat, &opts, &|done, _| {
-        pb.set_position(done as u64)
+    // Advanced once a run: its clock runs between (`ticking`).
+    let rows = ticking(&pb, || {
+        report::scale::measure(&scene, &topo, &dims, a.repeat, &opts, &|done, _| {
+            pb.set_position(done as u64)
+        })
     });
     pb.finish_and_clear();
     let rows = rows?;
