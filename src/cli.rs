@@ -532,16 +532,20 @@ fn ticking<T>(pb: &ProgressBar, f: impl FnOnce() -> T) -> T {
     }
     let done = AtomicBool::new(false);
     std::thread::scope(|s| {
-        let _ticker = std::thread::Builder::new()
+        let ticker = std::thread::Builder::new()
             .name("hypercast-progress".into())
             .spawn_scoped(s, || {
-                while !done.load(Ordering::Relaxed) {
+                while !done.load(Ordering::Acquire) {
                     pb.tick();
-                    std::thread::sleep(std::time::Duration::from_millis(250));
+                    std::thread::park_timeout(std::time::Duration::from_millis(250));
                 }
             });
         let out = f();
-        done.store(true, Ordering::Relaxed);
+        done.store(true, Ordering::Release);
+        // Woken, so that the command does not wait out its pause.
+        if let Ok(t) = &ticker {
+            t.thread().unpark();
+        }
         out
     })
 }
