@@ -720,9 +720,11 @@ enum Blocker {
 
 /// Lights up to which `CellTracer` keeps a shadow cache. Set when finding
 /// a shadow ray's light was a scan of them all; that is now a search
-/// beyond `SCAN_LIGHTS`, but no scene of more lights has yet shown what a
-/// cache per light would save (2,000 lights around a glass ball: no
-/// shadow ray took the cache's path either way).
+/// beyond `SCAN_LIGHTS`, but a cache for more lights did not pay: 2,000
+/// lights over a mirror ball on a box (64x48, `--dim 0`) ran 3.57 M
+/// intersection tests with it against 1.25 M without, in the same time
+/// (0.48 s against 0.49 s), as the lights' rays from one point are
+/// stopped by different solids.
 const SHADOW_CACHE_LIGHTS: usize = 16;
 
 impl<'a> CellTracer<'a> {
