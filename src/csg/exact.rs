@@ -98,6 +98,13 @@ impl Expansion {
         }
     }
 
+    /// `self · b` as a new expansion, exactly (`add_scaled` into none).
+    pub fn times(&self, b: f64) -> Expansion {
+        let mut e = Expansion::default();
+        e.add_scaled(self, b);
+        e
+    }
+
     /// `self · b` (Shewchuk's Scale-Expansion with zero elimination): each
     /// component's two-product, its error two-summed into the running sum.
     fn scaled(&self, b: f64) -> Expansion {

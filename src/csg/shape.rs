@@ -1109,7 +1109,6 @@ fn far_cylinder_roots(
     (base, top): (Vec3, Vec3),
     radius: f64,
 ) -> Roots {
-    use super::exact::Expansion;
     let along = (top - base).cmpne(Vec3::ZERO).bitmask();
     if along.count_ones() == 1 {
         // Along a coordinate axis (a drum lying along x or y): `f⊥` is `f`
@@ -1118,9 +1117,7 @@ fn far_cylinder_roots(
         return circle_roots_with(f_perp, d_perp, radius, c);
     }
     let [mut numerator, axis2, _] = exact_axial_terms(ray.origin, base, top);
-    let mut r_axis2 = Expansion::default();
-    r_axis2.add_scaled(&axis2, radius);
-    numerator.add_scaled(&r_axis2, -radius);
+    numerator.add_scaled(&axis2.times(radius), -radius);
     let c = numerator.estimate() / axis2.estimate();
     circle_roots_with(f_perp, d_perp, radius, c)
 }
@@ -1256,9 +1253,7 @@ fn exact_mapped_power(
         u.compress();
         // u_k times the other axes' scales.
         for &j in on.iter().filter(|&&j| j != k) {
-            let mut w = Expansion::default();
-            w.add_scaled(&u, s[j]);
-            u = w;
+            u = u.times(s[j]);
         }
         u.compress();
         numerator.add_product(&u, &u, 1.0);
@@ -1266,9 +1261,7 @@ fn exact_mapped_power(
     let mut rp = Expansion::default();
     rp.add_f64_product(radius, 1.0);
     for &j in &on {
-        let mut w = Expansion::default();
-        w.add_scaled(&rp, s[j]);
-        rp = w;
+        rp = rp.times(s[j]);
     }
     rp.compress();
     numerator.add_product(&rp, &rp, -1.0);
@@ -1734,8 +1727,7 @@ fn exact_cone_roots(
     use super::exact::Expansion;
     let [cross2, axis2, fa] = exact_axial_terms(ray.origin, base, top);
     // g·|A|² = rb·|A|² + D·(f·A).
-    let mut g = Expansion::default();
-    g.add_scaled(&axis2, rb);
+    let mut g = axis2.times(rb);
     g.add_product(&Expansion::diff(rt, rb), &fa, 1.0);
     g.compress();
     let mut numerator = Expansion::default();
