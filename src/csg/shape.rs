@@ -214,9 +214,8 @@ impl Primitive {
                 },
                 Some(m),
             ) if part == SIDE
-                && elliptic_drum(m, base, top).is_some_and(|(s, across)| {
-                    radius * (s * across).abs().max_element() > FAR_REACH * p.abs().max_element()
-                }) =>
+                && elliptic_drum(m, base, top)
+                    .is_some_and(|e| radius * e.semi_axis > FAR_REACH * p.abs().max_element()) =>
             {
                 0.0
             }
@@ -1109,8 +1108,7 @@ fn far_cylinder_roots(
     (base, top): (Vec3, Vec3),
     radius: f64,
 ) -> Roots {
-    let along = (top - base).cmpne(Vec3::ZERO).bitmask();
-    if along.count_ones() == 1 {
+    if let Some(along) = along_one_axis(base, top) {
         // Along a coordinate axis (a drum lying along x or y): `f⊥` is `f`
         // on the other two axes, and the power is the sphere's there.
         let c = exact_power_on(ray.origin, base, radius, !along);
@@ -1204,28 +1202,50 @@ fn mapped_cylinder_hits(ray: &Ray, m: &Affine, shape: &Shape) -> PrimHits {
         radius,
         capped,
         |t0, t1, f_perp, d_perp| {
-            let (s, across) = elliptic_drum(m, base, top)?;
-            let reach = radius * (s * across).abs().max_element();
-            if !reaches_far(reach, ray, t0, t1) {
+            let e = elliptic_drum(m, base, top)?;
+            if !reaches_far(radius * e.semi_axis, ray, t0, t1) {
                 return None;
             }
-            let axes = across.cmpne(Vec3::ZERO).bitmask();
-            let c = exact_mapped_power(ray.origin, m, s, (base, radius), axes)?;
+            let c = exact_mapped_power(ray.origin, m, e.scales, (base, radius), e.across)?;
             Some(circle_roots_with(f_perp, d_perp, radius, c))
         },
     )
 }
 
-/// The scales of `m`, and a mask (1 on the two axes across, 0 along) of a
-/// cylinder from `base` to `top` under it, where `m` keeps the coordinate
-/// axes and the cylinder lies along one of them: the elliptic drums whose
-/// side `mapped_cylinder_hits` can meet exactly.
-fn elliptic_drum(m: &Affine, base: Vec3, top: Vec3) -> Option<(Vec3, Vec3)> {
-    let along = (top - base).cmpne(Vec3::ZERO);
-    (along.bitmask().count_ones() == 1)
-        .then(|| m.axis_scales())
-        .flatten()
-        .map(|s| (s, Vec3::select(along, Vec3::ZERO, Vec3::ONE)))
+/// A cylinder under a map that keeps the coordinate axes, lying along one
+/// of them: an elliptic drum whose side `mapped_cylinder_hits` can meet
+/// exactly.
+struct EllipticDrum {
+    /// The map's scales.
+    scales: Vec3,
+    /// The two axes across the drum, as bits (bit `k` for axis `k`).
+    across: u32,
+    /// The largest scale across, in magnitude: the side's largest
+    /// semi-axis for a radius of 1.
+    semi_axis: f64,
+}
+
+/// The cylinder from `base` to `top` under `m` as an elliptic drum, if it
+/// is one.
+fn elliptic_drum(m: &Affine, base: Vec3, top: Vec3) -> Option<EllipticDrum> {
+    let across = !along_one_axis(base, top)? & 0b111;
+    let scales = m.axis_scales()?;
+    let semi_axis = (0..3)
+        .filter(|k| across & (1 << k) != 0)
+        .map(|k| scales[k].abs())
+        .fold(0.0, f64::max);
+    Some(EllipticDrum {
+        scales,
+        across,
+        semi_axis,
+    })
+}
+
+/// The axis (as a bit: bit `k` for axis `k`) a segment from `base` to
+/// `top` lies along, where it is a coordinate axis.
+fn along_one_axis(base: Vec3, top: Vec3) -> Option<u32> {
+    let along = (top - base).cmpne(Vec3::ZERO).bitmask();
+    (along.count_ones() == 1).then_some(along)
 }
 
 /// `Σ_k ((o_k − T_k)/s_k − c_k)² − r²` over the axes `k` whose bits are
