@@ -277,34 +277,32 @@ struct DepthCapped {
     depth: usize,
 }
 
-impl DepthCapped {
-    /// Whether the innermost open container is laid out pretty.
-    fn inner_pretty(&self) -> bool {
-        self.depth <= PRETTY_DEPTH
-    }
+/// `$self.$name(w, ..)` of the pretty formatter where the innermost open
+/// container is laid out pretty, else of the compact one: the one choice
+/// every method of `DepthCapped` makes.
+macro_rules! by_depth {
+    ($self:ident, $name:ident($($arg:ident),*)) => {
+        if $self.depth <= PRETTY_DEPTH {
+            $self.pretty.$name($($arg),*)
+        } else {
+            serde_json::ser::CompactFormatter.$name($($arg),*)
+        }
+    };
 }
 
-/// Each call goes to the pretty formatter where the container it belongs
-/// to is pretty, else to the compact one; a container's opening and
-/// closing calls are taken at the same depth, so both go to the same one.
+/// Each call goes to the formatter of the container it belongs to
+/// (`by_depth!`); a container's opening and closing calls are taken at
+/// the same depth, so both go to the same one.
 impl serde_json::ser::Formatter for DepthCapped {
     fn begin_array<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
         self.depth += 1;
-        if self.inner_pretty() {
-            self.pretty.begin_array(w)
-        } else {
-            serde_json::ser::CompactFormatter.begin_array(w)
-        }
+        by_depth!(self, begin_array(w))
     }
 
     fn end_array<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
-        let pretty = self.inner_pretty();
+        let written = by_depth!(self, end_array(w));
         self.depth -= 1;
-        if pretty {
-            self.pretty.end_array(w)
-        } else {
-            serde_json::ser::CompactFormatter.end_array(w)
-        }
+        written
     }
 
     fn begin_array_value<W: ?Sized + std::io::Write>(
@@ -312,38 +310,22 @@ impl serde_json::ser::Formatter for DepthCapped {
         w: &mut W,
         first: bool,
     ) -> std::io::Result<()> {
-        if self.inner_pretty() {
-            self.pretty.begin_array_value(w, first)
-        } else {
-            serde_json::ser::CompactFormatter.begin_array_value(w, first)
-        }
+        by_depth!(self, begin_array_value(w, first))
     }
 
     fn end_array_value<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
-        if self.inner_pretty() {
-            self.pretty.end_array_value(w)
-        } else {
-            Ok(())
-        }
+        by_depth!(self, end_array_value(w))
     }
 
     fn begin_object<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
         self.depth += 1;
-        if self.inner_pretty() {
-            self.pretty.begin_object(w)
-        } else {
-            serde_json::ser::CompactFormatter.begin_object(w)
-        }
+        by_depth!(self, begin_object(w))
     }
 
     fn end_object<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
-        let pretty = self.inner_pretty();
+        let written = by_depth!(self, end_object(w));
         self.depth -= 1;
-        if pretty {
-            self.pretty.end_object(w)
-        } else {
-            serde_json::ser::CompactFormatter.end_object(w)
-        }
+        written
     }
 
     fn begin_object_key<W: ?Sized + std::io::Write>(
@@ -351,27 +333,15 @@ impl serde_json::ser::Formatter for DepthCapped {
         w: &mut W,
         first: bool,
     ) -> std::io::Result<()> {
-        if self.inner_pretty() {
-            self.pretty.begin_object_key(w, first)
-        } else {
-            serde_json::ser::CompactFormatter.begin_object_key(w, first)
-        }
+        by_depth!(self, begin_object_key(w, first))
     }
 
     fn begin_object_value<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
-        if self.inner_pretty() {
-            self.pretty.begin_object_value(w)
-        } else {
-            serde_json::ser::CompactFormatter.begin_object_value(w)
-        }
+        by_depth!(self, begin_object_value(w))
     }
 
     fn end_object_value<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
-        if self.inner_pretty() {
-            self.pretty.end_object_value(w)
-        } else {
-            Ok(())
-        }
+        by_depth!(self, end_object_value(w))
     }
 }
 
