@@ -1906,13 +1906,7 @@ mod tests {
     /// hair apart; ends at lights, near them, and anywhere.
     #[test]
     fn the_light_a_shadow_ray_ends_at_is_the_scans() {
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = move || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = crate::testing::uniform(0x9e37_79b9_7f4a_7c15);
         let mut lights = Vec::new();
         for k in 0..300 {
             let scale = [1.0, 1e-6, 1e6, 1e12][k % 4];

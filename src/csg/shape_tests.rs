@@ -6,6 +6,7 @@
 
 use super::*;
 use crate::geom::{Affine, Ray, Vec3};
+use crate::testing::uniform;
 
 fn v(x: f64, y: f64, z: f64) -> Vec3 {
     Vec3::new(x, y, z)
@@ -942,18 +943,6 @@ fn triangle_hits_match_the_plane_and_barycentrics() {
     let p = o + d * want;
     assert!(p.x > 0.0 && p.y > 0.0 && p.z > 0.0, "hit {p} outside");
     assert_vec_close(normal_at(&tri, o, d, cs[0]), n.normalize(), 1e-15);
-}
-
-/// Numbers uniform in [0, 1) from `seed` (a linear congruential
-/// generator: the far-reaching tests' rays).
-fn uniform(seed: u64) -> impl FnMut() -> f64 {
-    let mut state = seed;
-    move || {
-        state = state
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (state >> 11) as f64 / (1u64 << 53) as f64
-    }
 }
 
 /// A tilted triangle reaching 1e20 to 1e50 away, on the plane `z = (x +
