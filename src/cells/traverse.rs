@@ -689,6 +689,16 @@ struct LightsByX {
 const SCAN_LIGHTS: usize = 16;
 
 impl LightsByX {
+    /// The bytes of the order kept for `lights` lights (none up to
+    /// `SCAN_LIGHTS`), which a node counts in its budget.
+    fn bytes_for(lights: usize) -> usize {
+        if lights > SCAN_LIGHTS {
+            lights * std::mem::size_of::<(f64, u32)>()
+        } else {
+            0
+        }
+    }
+
     fn new(scene: &Scene) -> LightsByX {
         let mut order: Vec<(f64, u32)> = Vec::new();
         if scene.lights.len() > SCAN_LIGHTS {
@@ -1082,11 +1092,13 @@ impl<'a> CellTracer<'a> {
 
     /// Bytes a tracer over `cs` and `scene` keeps: a mailbox and the
     /// crossings per primitive, an operator mailbox per scene node, a
-    /// shadow cache entry per light, and the cache of local indices.
+    /// shadow cache entry per light, the lights sorted for the search
+    /// (`LightsByX`), and the cache of local indices.
     pub fn bytes_for(cs: &CellStructure, scene: &Scene) -> usize {
         scene.primitives.len() * Self::BYTES_PER_PRIMITIVE
             + cs.origin_count * Self::BYTES_PER_ORIGIN
             + scene.lights.len() * std::mem::size_of::<Option<Blocker>>()
+            + LightsByX::bytes_for(scene.lights.len())
             + std::mem::size_of::<[(u32, Option<PrimId>); LOCAL_CACHE]>()
     }
 
