@@ -512,13 +512,73 @@ pub fn progress_bar(total: u64, quiet: bool, what: &str) -> ProgressBar {
     let pb = ProgressBar::new(total);
     pb.set_style(
         ProgressStyle::with_template(
-            "{prefix} [{bar:40}] {percent:>3}% {elapsed_precise} eta {eta}",
+            "{prefix} [{bar:40}] {percent:>3}% {elapsed_precise} eta {left}",
         )
         .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .with_key("left", Eta::default())
         .progress_chars("=> "),
     );
     pb.set_prefix(what.to_string());
     pb
+}
+
+/// The bar's time left, at the mean rate since its first unit of work.
+/// indicatif's own estimate leans on the first units, which come slowly
+/// (the machine fills its nodes with paths before rows finish, and the
+/// plan before them advances nothing): it said "eta 3d" at the start of a
+/// render of 3 s. Shown once a twentieth of the work is done; "--" before.
+#[derive(Clone, Default)]
+struct Eta {
+    /// When the bar was first seen past zero, and its position then.
+    first: Option<(std::time::Instant, u64)>,
+    /// The latest tick.
+    now: Option<std::time::Instant>,
+}
+
+impl indicatif::style::ProgressTracker for Eta {
+    fn clone_box(&self) -> Box<dyn indicatif::style::ProgressTracker> {
+        Box::new(self.clone())
+    }
+
+    fn tick(&mut self, state: &indicatif::ProgressState, now: std::time::Instant) {
+        if self.first.is_none() && state.pos() > 0 {
+            self.first = Some((now, state.pos()));
+        }
+        self.now = Some(now);
+    }
+
+    fn reset(&mut self, _: &indicatif::ProgressState, _: std::time::Instant) {
+        *self = Eta::default();
+    }
+
+    fn write(&self, state: &indicatif::ProgressState, w: &mut dyn std::fmt::Write) {
+        let left = match (self.first, self.now, state.len()) {
+            (Some((t0, p0)), Some(now), Some(len)) => {
+                seconds_left(now.duration_since(t0).as_secs_f64(), p0, state.pos(), len)
+            }
+            _ => None,
+        };
+        let _ = match left {
+            Some(s) => write!(
+                w,
+                "{:#}",
+                indicatif::HumanDuration(std::time::Duration::from_secs_f64(s))
+            ),
+            None => write!(w, "--"),
+        };
+    }
+}
+
+/// Seconds left for work at `pos` of `len`, having gone from `first` to
+/// `pos` in `elapsed` seconds; `None` until a twentieth of `len` is done
+/// since `first`, when the rate says little yet.
+fn seconds_left(elapsed: f64, first: u64, pos: u64, len: u64) -> Option<f64> {
+    let done = pos.saturating_sub(first);
+    if done == 0 || done.saturating_mul(20) < len || elapsed.is_nan() || elapsed <= 0.0 {
+        return None;
+    }
+    let left = len.saturating_sub(pos) as f64 * elapsed / done as f64;
+    left.is_finite().then_some(left.min(1e9))
 }
 
 /// Runs `f` while a thread redraws `pb` four times a second, so that its
@@ -1162,5 +1222,19 @@ mod tests {
         assert_eq!(super::counted(1, "node"), "1 node");
         assert_eq!(super::counted(32, "node"), "32 nodes");
         assert_eq!(super::counted(0, "thread"), "0 threads");
+    }
+
+    /// The bar's time left is the mean rate's since the first unit, and
+    /// says nothing before a twentieth of the work.
+    #[test]
+    fn time_left_is_the_mean_rates_once_a_twentieth_is_done() {
+        use super::seconds_left;
+        // 1,000 rows, the first seen at row 10; 40 more rows in 2 s.
+        assert_eq!(seconds_left(2.0, 10, 50, 1000), None);
+        assert_eq!(seconds_left(2.0, 10, 60, 1000), Some(37.6));
+        assert_eq!(seconds_left(0.0, 10, 600, 1000), None);
+        assert_eq!(seconds_left(3.0, 0, 1000, 1000), Some(0.0));
+        // Six runs of `scale`: the second done one second after the first.
+        assert_eq!(seconds_left(1.0, 1, 2, 6), Some(4.0));
     }
 }

@@ -1,6 +1,8 @@
 //! The `hypercast` binary: parse, run, map the error to an exit code
 //! (`CLI.md`: 0 success, 1 a render failed, 2 bad input). Nothing else.
 
+use std::io::IsTerminal;
+
 use clap::Parser;
 
 fn main() {
@@ -16,6 +18,22 @@ fn main() {
             default(info);
         }
     }));
+    // Ctrl-C, SIGTERM or SIGHUP would end the process without the
+    // destructors that remove an image's temporary file; the handler
+    // removes any still being written, then exits as interrupted (130, as
+    // a shell reports SIGINT). Where it cannot be installed the signals
+    // keep their default action, which writes nothing either.
+    let _ = ctrlc::set_handler(|| {
+        hypercast::report::image_io::discard_unfinished();
+        // On a terminal the progress bar's line is cleared first.
+        let clear = if std::io::stderr().is_terminal() {
+            "\r\x1b[2K"
+        } else {
+            ""
+        };
+        eprintln!("{clear}hypercast: interrupted; no file left half-written");
+        std::process::exit(130);
+    });
     let cli = hypercast::cli::Cli::parse();
     if let Err(e) = hypercast::cli::run(cli) {
         eprintln!("hypercast: error: {e}");

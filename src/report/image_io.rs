@@ -5,7 +5,8 @@
 
 use std::borrow::Cow;
 use std::io::BufWriter;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::{Mutex, MutexGuard};
 
 use image::codecs::pnm::{PnmEncoder, PnmSubtype, SampleEncoding};
 use image::{ExtendedColorType, ImageEncoder, ImageFormat, Rgb32FImage, RgbImage};
@@ -227,9 +228,37 @@ pub fn folder_of(path: &Path) -> &Path {
     }
 }
 
+/// The temporary files `write_atomically` is writing, so that an interrupt
+/// can remove them (`discard_unfinished`): a signal ends the process
+/// without the destructors that remove them otherwise. A plain process-wide
+/// list, not node state: only the command's own thread writes files.
+static UNFINISHED: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+
+fn unfinished() -> MutexGuard<'static, Vec<PathBuf>> {
+    // A panic while the list was held left it consistent (one push or one
+    // retain), so a poisoned lock is still good to use.
+    UNFINISHED.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// Removes the temporary files of writes still under way. The interrupt
+/// handler (`main`) calls it before the process exits, so that Ctrl-C or a
+/// SIGTERM in the middle of writing an image leaves no `.hypercast-*.tmp`
+/// behind; files already renamed into place are whole and stay.
+pub fn discard_unfinished() {
+    for tmp in unfinished().drain(..) {
+        let _ = std::fs::remove_file(tmp);
+    }
+}
+
+/// Test only: the seconds `write_atomically` waits before its commit point,
+/// announcing its temporary file on standard error, so that a test can
+/// interrupt a write at a moment it knows.
+const HOLD_ENV: &str = "HYPERCAST_TEST_HOLD_COMMIT";
+
 /// Writes `path` through a temporary file in the same folder and a rename,
 /// the commit point: until it, `path` is untouched, and a failure leaves
-/// nothing behind (the temporary file is removed when dropped).
+/// nothing behind (the temporary file is removed when dropped, or by
+/// `discard_unfinished` when the process is interrupted).
 pub fn write_atomically<F>(path: &Path, fill: F) -> Result<()>
 where
     F: FnOnce(&mut std::fs::File) -> std::result::Result<(), String>,
@@ -239,23 +268,51 @@ where
         message,
     };
     let dir = folder_of(path);
-    let mut tmp = tempfile::Builder::new()
-        .prefix(".hypercast-")
-        .suffix(".tmp")
-        .tempfile_in(dir)
-        .map_err(|e| err(e.to_string()))?;
-    fill(tmp.as_file_mut()).map_err(err)?;
-    tmp.as_file().sync_all().map_err(|e| err(e.to_string()))?;
-    // Temporary files are created private; an output file is not.
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        let _ = tmp
-            .as_file()
-            .set_permissions(std::fs::Permissions::from_mode(0o644));
+    // Created and listed under the list's lock, and renamed and unlisted
+    // under it too, so that an interrupt sees every temporary file that
+    // exists and none that has become `path`.
+    let mut tmp = {
+        let mut list = unfinished();
+        let tmp = tempfile::Builder::new()
+            .prefix(".hypercast-")
+            .suffix(".tmp")
+            .tempfile_in(dir)
+            .map_err(|e| {
+                // tempfile's message ends with the random name it tried,
+                // which tells the user nothing.
+                let why = e.to_string();
+                let why = why.split(" at path ").next().unwrap_or(&why);
+                err(format!("cannot create a file in {}: {why}", dir.display()))
+            })?;
+        list.push(tmp.path().to_path_buf());
+        tmp
+    };
+    let written = tmp.path().to_path_buf();
+    let result = (|| {
+        fill(tmp.as_file_mut()).map_err(err)?;
+        tmp.as_file().sync_all().map_err(|e| err(e.to_string()))?;
+        // Temporary files are created private; an output file is not.
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            let _ = tmp
+                .as_file()
+                .set_permissions(std::fs::Permissions::from_mode(0o644));
+        }
+        if let Some(secs) = std::env::var(HOLD_ENV).ok().and_then(|s| s.parse().ok()) {
+            eprintln!("hypercast: holding {}", written.display());
+            std::thread::sleep(std::time::Duration::from_secs_f64(secs));
+        }
+        let mut list = unfinished();
+        list.retain(|p| *p != written);
+        tmp.persist(path).map_err(|e| err(e.error.to_string()))?;
+        Ok(())
+    })();
+    if result.is_err() {
+        // The temporary file is gone (dropped with its handle) or renamed.
+        unfinished().retain(|p| *p != written);
     }
-    tmp.persist(path).map_err(|e| err(e.error.to_string()))?;
-    Ok(())
+    result
 }
 
 /// A reference image as display values (sRGB-encoded, [0, 1]).

@@ -1173,3 +1173,54 @@ fn a_closed_standard_output_ends_no_report_early() {
     assert!(!stderr(&o).contains("panicked"), "{}", stderr(&o));
     assert!(tmp.path().join("o.png").is_file(), "the overlay is written");
 }
+
+/// An interrupt while an image is being written (`CLI.md`: no half-written
+/// output file) removes the temporary file too, which the signal's default
+/// action would have left beside the output. The write is held at a known
+/// point (a test-only environment variable) and interrupted there, with
+/// SIGINT as Ctrl-C sends it and with SIGTERM.
+#[cfg(unix)]
+#[test]
+fn an_interrupted_write_leaves_no_file_behind() {
+    use std::io::{BufRead, BufReader};
+    let scene = util::repo("scenes/small/sphere.ron");
+    for signal in ["INT", "TERM"] {
+        let tmp = tempfile::tempdir().unwrap();
+        let mut child = Command::new(BIN)
+            .args([
+                "render",
+                path_str(&scene),
+                "--width",
+                "16",
+                "--height",
+                "12",
+            ])
+            .args(["--dim", "0", "-o", "out.png"])
+            .current_dir(tmp.path())
+            .env("HYPERCAST_TEST_HOLD_COMMIT", "20")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let mut err = BufReader::new(child.stderr.take().unwrap());
+        let mut line = String::new();
+        while !line.starts_with("hypercast: holding") {
+            line.clear();
+            assert_ne!(err.read_line(&mut line).unwrap(), 0, "no hold announced");
+        }
+        assert_eq!(files_in(tmp.path()).len(), 1, "the temporary file exists");
+        let killed = Command::new("kill")
+            .args([&format!("-{signal}"), &child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(killed.success());
+        let start = Instant::now();
+        let status = child.wait().unwrap();
+        let mut rest = String::new();
+        std::io::Read::read_to_string(&mut err, &mut rest).unwrap();
+        assert_eq!(status.code(), Some(130), "SIG{signal}: {status:?} {rest}");
+        assert!(rest.contains("interrupted"), "{rest}");
+        assert!(start.elapsed() < Duration::from_secs(10));
+        assert_eq!(files_in(tmp.path()), Vec::<PathBuf>::new(), "SIG{signal}");
+    }
+}
