@@ -187,8 +187,14 @@ pub fn partition_in(
     }
     let n = prims.len();
     let cost = Cost::new(rects, window, weights);
-    // Budget of leaves: beyond it, pending regions become leaves as they are.
-    let max_leaves = 16 * n + 64;
+    // Budget of leaves: beyond it, pending regions become leaves as they
+    // are. It leaves room for the super cells the machine asks for and for
+    // its splits of heavy ones (`mapping::hot`): held to 16 per primitive,
+    // `csg_basics.ron` (11 primitives) stopped at 240 super cells however
+    // many nodes, and on 64 and 128 nodes its loads stayed 5 and 18 times
+    // uneven (predicted), which made its run 1.5 and 4 times as long in
+    // virtual time as on 32.
+    let max_leaves = (16 * n + 64).max(4 * min_leaves);
     let mut out = Partition::default();
     out.nodes.push(BspNode::Leaf(0));
     let mut queue = VecDeque::new();
