@@ -880,6 +880,8 @@ pub fn machine_json(topo: &Topology, ms: &MachineStats) -> Vec<(&'static str, se
         ("imbalance", num(ms.imbalance)),
         ("predicted_imbalance", num(ms.predicted_imbalance)),
         ("prepass_seconds", num(ms.prepass_seconds)),
+        ("run_seconds", num(ms.run_seconds)),
+        ("run_cpu_seconds", num(ms.run_cpu_seconds)),
         ("split_super_cells", json!(ms.split_super_cells)),
         ("subdivision", json!(ms.subdivision.name())),
         (

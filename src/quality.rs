@@ -13,7 +13,7 @@
 use crate::cells::CellOptions;
 use crate::error::Result;
 use crate::machine::calibrate::Calibration;
-use crate::machine::{self, MachineOptions, MachineStats, ticks};
+use crate::machine::{self, MachineOptions};
 use crate::render::{self, Accel, Adaptive, RenderOptions, RenderStats};
 use crate::report::quality::{Knobs, Point};
 use crate::report::{self, DisplayImage, compare, image_io};
@@ -206,16 +206,6 @@ pub fn model_knobs(knobs: &[Knobs], scene_depth: u32) -> Vec<Knobs> {
         .collect()
 }
 
-/// The wall time of the span a machine render's virtual time models, from
-/// the first load message to the last finished sample: the render's wall
-/// time without the host's structure build and cost pre-pass, which the
-/// nodes' clocks do not see. (What else the host does before loading, the
-/// restriction of each node's share, stays in: it is small, and it is
-/// part of what the model leaves out.)
-pub fn machine_span(ms: &MachineStats) -> f64 {
-    (ms.wall_seconds - ms.build_seconds - ms.prepass_seconds).max(0.0)
-}
-
 /// Renders each of `knobs` on the machine of `calibration`'s topology, for
 /// each of `dimensions`, and measures it like a point: the runs of the
 /// model's error. `progress` is told each run's work units when it ends.
@@ -235,21 +225,20 @@ pub fn model_runs(
             let mut s = scene.clone();
             s.max_depth = k.max_depth;
             let mopts = MachineOptions::new(opts.width, opts.height, k.spp);
-            let cpu0 = ticks::process_cpu_seconds();
             let (film, ms, _, aa) =
                 machine::render_adaptive(&s, &topo, &mopts, k.adaptive, &|_| {})?;
-            // The build and pre-pass run on one thread: their CPU time is
-            // their wall time.
-            let cpu = ticks::process_cpu_seconds() - cpu0 - ms.build_seconds - ms.prepass_seconds;
             progress(aa.passes as u64 * work_units(opts.height, k.spp));
             let display = reference.comparable(&film.to_linear());
             points.push(Point {
                 knobs: *k,
                 family: k.family(scene.max_depth),
                 dimension: Some(d),
-                wall_seconds: machine_span(&ms),
+                wall_seconds: ms.run_seconds,
                 virtual_seconds: Some(ms.virtual_seconds),
-                cpu_seconds: Some(cpu.max(0.0)),
+                // Over the same span: the build and the pre-pass run on
+                // several threads, so their wall time is not their CPU time
+                // (subtracted, it left "0.00 cores busy" on small renders).
+                cpu_seconds: Some(ms.run_cpu_seconds),
                 metrics: compare(&display, &reference.pixels),
                 samples: aa.samples,
                 pixels: opts.width as u64 * opts.height as u64,

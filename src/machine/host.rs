@@ -88,6 +88,13 @@ impl MachineOptions {
 pub struct MachineStats {
     pub dimension: u32,
     pub wall_seconds: f64,
+    /// The host's wall time of the passes alone, from loading the nodes to
+    /// the last finished sample: the span the virtual time models, without
+    /// the plan (build, pre-pass, shares) before it.
+    pub run_seconds: f64,
+    /// The process's CPU time over that span (`ticks::process_cpu_seconds`):
+    /// the nodes', the host thread's and the OS's for them.
+    pub run_cpu_seconds: f64,
     /// The modelled machine's makespan, from the first load message to the
     /// last finished sample at the host.
     pub virtual_seconds: f64,
@@ -900,6 +907,7 @@ pub fn render_adaptive(
         return Err(advise(e, scene, topo, opts));
     }
     let mut film = Some(film);
+    let (run_start, run_cpu) = (Instant::now(), super::ticks::process_cpu_seconds());
     let sampling = Sampling {
         spp: opts.spp.max(1),
         adaptive,
@@ -918,6 +926,8 @@ pub fn render_adaptive(
     })?;
     let mut stats = total.expect("aa::render_adaptive returns Ok only after its first pass");
     stats.wall_seconds = start.elapsed().as_secs_f64();
+    stats.run_seconds = run_start.elapsed().as_secs_f64();
+    stats.run_cpu_seconds = (super::ticks::process_cpu_seconds() - run_cpu).max(0.0);
     stats.build_seconds = plan.cells.stats.build_seconds;
     stats.prepass_seconds = plan.prepass_seconds;
     stats.split_super_cells = plan.split_super_cells;

@@ -60,7 +60,7 @@ pub struct Point {
     pub dimension: Option<u32>,
     /// Host threads: the render's wall time. Machine: the wall time of
     /// the span virtual time models, from loading the nodes to the last
-    /// finished sample (the host's structure build and cost pre-pass,
+    /// finished sample (`MachineStats::run_seconds`: the host's plan,
     /// which the model does not time, left out).
     pub wall_seconds: f64,
     /// The modelled machine's predicted makespan, for a machine run.
