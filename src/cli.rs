@@ -320,7 +320,8 @@ fn default_output(scene: &Path) -> PathBuf {
 }
 
 pub(crate) fn check_writable_dir(path: &Path) -> Result<()> {
-    let dir = folder_of(path);
+    let target = report::image_io::write_target(path);
+    let dir = folder_of(&target);
     if !dir.is_dir() {
         return Err(Error::Usage(format!(
             "{}: the folder {} does not exist",
@@ -367,7 +368,8 @@ fn same_file(a: &Path, b: &Path) -> bool {
     }
     // One does not exist yet: compare where each would be.
     let place = |p: &Path| -> Option<PathBuf> {
-        Some(folder_of(p).canonicalize().ok()?.join(p.file_name()?))
+        let p = report::image_io::write_target(p);
+        Some(folder_of(&p).canonicalize().ok()?.join(p.file_name()?))
     };
     matches!((place(a), place(b)), (Some(x), Some(y)) if x == y)
 }

@@ -228,6 +228,23 @@ pub fn folder_of(path: &Path) -> &Path {
     }
 }
 
+/// The file a write to `path` replaces: `path`, or, where it is a symbolic
+/// link, the file it points to (links of links followed, at most 40, the
+/// kernel's own limit). The rename of `write_atomically` would otherwise
+/// replace the link with a plain file and leave its target as it was,
+/// which is not what writing to a link means anywhere else.
+pub fn write_target(path: &Path) -> PathBuf {
+    let mut p = path.to_path_buf();
+    for _ in 0..40 {
+        match std::fs::read_link(&p) {
+            // A relative target is relative to the link's folder.
+            Ok(t) => p = folder_of(&p).join(t),
+            Err(_) => break,
+        }
+    }
+    p
+}
+
 /// The temporary files `write_atomically` is writing, so that an interrupt
 /// can remove them (`discard_unfinished`): a signal ends the process
 /// without the destructors that remove them otherwise. A plain process-wide
@@ -267,7 +284,8 @@ where
         path: path.to_path_buf(),
         message,
     };
-    let dir = folder_of(path);
+    let target = write_target(path);
+    let dir = folder_of(&target);
     // Created and listed under the list's lock, and renamed and unlisted
     // under it too, so that an interrupt sees every temporary file that
     // exists and none that has become `path`.
@@ -305,7 +323,7 @@ where
         }
         let mut list = unfinished();
         list.retain(|p| *p != written);
-        tmp.persist(path).map_err(|e| err(e.error.to_string()))?;
+        tmp.persist(&target).map_err(|e| err(e.error.to_string()))?;
         Ok(())
     })();
     if result.is_err() {

@@ -1224,3 +1224,53 @@ fn an_interrupted_write_leaves_no_file_behind() {
         assert_eq!(files_in(tmp.path()), Vec::<PathBuf>::new(), "SIG{signal}");
     }
 }
+
+/// An output that is a symbolic link is written where the link points,
+/// the link kept: the atomic rename would otherwise have replaced the link
+/// with a plain file and left its target as it was. A link to one of the
+/// run's inputs is refused like the input itself.
+#[cfg(unix)]
+#[test]
+fn an_output_through_a_symbolic_link_writes_its_target() {
+    use std::os::unix::fs::symlink;
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let scene = util::repo("scenes/small/sphere.ron");
+    std::fs::create_dir(dir.join("renders")).unwrap();
+    symlink("renders/old.png", dir.join("latest.png")).unwrap();
+    std::fs::write(dir.join("renders/old.png"), b"an older image").unwrap();
+    symlink("renders/new.png", dir.join("dangling.png")).unwrap();
+    let args =
+        |out: &'static str| [vec!["render", path_str(&scene), "-q", "-o"], vec![out]].concat();
+    for out in ["latest.png", "dangling.png"] {
+        let o = run(dir, &args(out));
+        assert_eq!(o.status.code(), Some(0), "{out}: {}", stderr(&o));
+        assert!(
+            dir.join(out)
+                .symlink_metadata()
+                .unwrap()
+                .file_type()
+                .is_symlink()
+        );
+    }
+    for target in ["renders/old.png", "renders/new.png"] {
+        let png = std::fs::read(dir.join(target)).unwrap();
+        assert!(png.starts_with(b"\x89PNG"), "{target} is the render");
+    }
+    symlink(&scene, dir.join("scene.png")).unwrap();
+    let o = run(dir, &args("scene.png"));
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("would replace the scene"),
+        "{}",
+        stderr(&o)
+    );
+    symlink("nowhere/x.png", dir.join("lost.png")).unwrap();
+    let o = run(dir, &args("lost.png"));
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("nowhere does not exist"),
+        "{}",
+        stderr(&o)
+    );
+}
