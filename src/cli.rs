@@ -1113,10 +1113,18 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
         let (film, _) = rendered?;
         let mut img = film.to_linear();
         let cam = crate::trace::CameraFrame::new(&scene, width, height);
-        report::overlay::draw_super_cells(&mut img, &cam, cs, Some(&plan.owner[0]));
+        let most = report::overlay::draw_super_cells(&mut img, &cam, cs, Some(&plan.owner[0]));
         report::write_image(o, width, height, &img)?;
         if !a.quiet {
-            eprintln!("hypercast: wrote {}", o.display());
+            let scale = match most {
+                1 => "red 1".to_string(),
+                _ => format!("blue 1 to red {most}"),
+            };
+            eprintln!(
+                "hypercast: wrote {}: super cells outlined by their primitives, {scale}, grey \
+                 none; tinted by the node that owns them",
+                o.display()
+            );
         }
     }
     Ok(())

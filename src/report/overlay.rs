@@ -32,13 +32,15 @@ fn hsv(h: f64, s: f64, v: f64) -> [f32; 3] {
     [r as f32, g as f32, b as f32]
 }
 
-/// Draws the super cells of `cs` onto linear pixels `img` (width × height).
+/// Draws the super cells of `cs` onto linear pixels `img` (width × height),
+/// and returns the most primitives in one super cell: the red end of the
+/// outlines' scale, for the key the command prints.
 pub fn draw_super_cells(
     img: &mut [[f32; 3]],
     cam: &CameraFrame,
     cs: &CellStructure,
     owner: Option<&[u16]>,
-) {
+) -> usize {
     let (w, h) = (cam.width as i64, cam.height as i64);
     let front = cs.region(Region::Front);
     let max = front
@@ -48,7 +50,9 @@ pub fn draw_super_cells(
         .map(|l| l.prims.len())
         .max()
         .unwrap_or(1)
-        .max(1) as f64;
+        .max(1);
+    let most = max;
+    let max = max as f64;
     // Screen x/z, y/z to pixel coordinates (pixel centres at +0.5).
     let px = |sx: f64| ((sx / cam.half_w + 1.0) * 0.5 * w as f64).clamp(-1.0, w as f64 + 1.0);
     let py = |sy: f64| ((1.0 - sy / cam.half_h) * 0.5 * h as f64).clamp(-1.0, h as f64 + 1.0);
@@ -93,4 +97,5 @@ pub fn draw_super_cells(
             put(x1, y, c);
         }
     }
+    most
 }

@@ -910,11 +910,24 @@ fn inspect_prints_the_subdivision_and_every_nodes_share() {
     assert!(rows.iter().all(|w| !w.contains(&"-0")), "{out}");
     let img = image::open(tmp.path().join("overlay.png")).expect("the overlay");
     assert_eq!((img.width(), img.height()), (160, 120));
+    // The overlay's key: the outlines' scale ends at the most primitives
+    // of a super cell, which is the most of any cell in it at least.
+    let err = stderr(&o);
+    let most: u64 = err
+        .split("blue 1 to red ")
+        .nth(1)
+        .and_then(|s| s.split(',').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no key for the overlay in {err}"));
     let v: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(tmp.path().join("inspect.json")).unwrap())
             .unwrap();
     assert_eq!(v["primitives"], 203);
     assert_eq!(v["nodes"], 32);
+    let per_cell = v["primitives_per_cell"]["max"]
+        .as_u64()
+        .expect("max per cell");
+    assert!(most >= per_cell && most <= 203, "{most} against {per_cell}");
     let nodes = v["per_node"].as_array().expect("per_node");
     assert_eq!(nodes.len(), 32);
     let supers: u64 = nodes
