@@ -174,3 +174,22 @@ pub fn start_worker<'scope, T: Send + 'scope>(
         .spawn_scoped(scope, work)
         .map_err(|e| Error::Render(format!("cannot start {what} {} of {n}: {e}", i + 1)))
 }
+
+/// A number as messages write it: plain up to seven characters (`5`,
+/// `0.25`, `1000000`), else the shortest of its plain and exponent forms
+/// (`1e-300`, not three hundred digits; `1e12`, `1234567.5`).
+pub(crate) fn fmt_num(x: f64) -> String {
+    let plain = format!("{x}");
+    if plain.len() <= 7 {
+        return plain;
+    }
+    [format!("{x:?}"), format!("{x:e}")]
+        .into_iter()
+        .fold(plain, |a, b| if b.len() < a.len() { b } else { a })
+}
+
+/// `x` to four significant digits, written as `fmt_num` writes it
+/// (`0.9254`, `7.071e-16`).
+pub(crate) fn fmt_sig(x: f64) -> String {
+    fmt_num(format!("{x:.3e}").parse().unwrap_or(x))
+}

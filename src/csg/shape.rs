@@ -22,6 +22,7 @@
 // "no hit" branch.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+use crate::error::fmt_sig;
 use crate::geom::{Aabb, Affine, Ray, Vec3, frobenius_norm};
 use crate::scene::MaterialId;
 use glam::DMat3;
@@ -373,7 +374,7 @@ impl Polygon {
         let newell = newell_normal(&vs, centre);
         let twice_area = newell.length();
         if !(twice_area > 1e-12 * extent * extent) {
-            return Err("the polygon has zero area (its vertices are collinear)".to_string());
+            return Err(zero_area(&vs, extent));
         }
         let unit = newell / twice_area;
         let centroid = vs.iter().fold(Vec3::ZERO, |s, v| s + (*v - centre)) / n as f64 + centre;
@@ -382,8 +383,10 @@ impl Polygon {
             let dist = (*v - centroid).dot(unit).abs();
             if dist > tol {
                 return Err(format!(
-                    "the polygon is not planar: vertex {i} is {dist:e} from its plane \
-                     (tolerance {tol:e})"
+                    "the polygon is not planar: vertex {i} is {} from its plane \
+                     (tolerance {})",
+                    fmt_sig(dist),
+                    fmt_sig(tol)
                 ));
             }
         }
@@ -422,6 +425,35 @@ impl Polygon {
     pub fn heap_bytes(&self) -> usize {
         self.vertices.capacity() * std::mem::size_of::<Vec3>()
             + self.triangles.capacity() * std::mem::size_of::<[u32; 3]>()
+    }
+}
+
+/// Why a polygon's area is zero: its vertices lie on a line (within the
+/// planarity tolerance of `extent`), or its boundary crosses itself so that
+/// the signed areas of its parts cancel (a bow tie), which the message must
+/// not call collinear.
+fn zero_area(vs: &[Vec3], extent: f64) -> String {
+    let o = vs[0];
+    let far = vs
+        .iter()
+        .copied()
+        .max_by(|a, b| {
+            (*a - o)
+                .length_squared()
+                .total_cmp(&(*b - o).length_squared())
+        })
+        .unwrap_or(o);
+    let along = (far - o).normalize_or_zero();
+    let off_line = vs
+        .iter()
+        .map(|v| (*v - o).cross(along).length())
+        .fold(0.0, f64::max);
+    if off_line <= 1e-9 * extent {
+        "the polygon has zero area (its vertices are collinear)".to_string()
+    } else {
+        "the polygon has zero area: its boundary crosses itself so that its parts cancel; \
+         give each part as a polygon of its own"
+            .to_string()
     }
 }
 

@@ -1233,13 +1233,21 @@ fn polygon_from_vertices_rejects_bad_input() {
     assert!(Polygon::from_vertices(vec![sq[0], sq[1], sq[1], sq[0]]).is_err());
     assert!(Polygon::from_vertices(vec![sq[0], sq[1], v(f64::NAN, 0.0, 0.0)]).is_err());
     assert!(Polygon::from_vertices(vec![sq[0], sq[1], v(f64::INFINITY, 0.0, 0.0)]).is_err());
+    let why = |vs: Vec<Vec3>| Polygon::from_vertices(vs).err().unwrap_or_default();
     assert!(
-        Polygon::from_vertices(vec![sq[0], sq[1], v(2.0, 0.0, 0.0)]).is_err(),
+        why(vec![sq[0], sq[1], v(2.0, 0.0, 0.0)]).contains("collinear"),
         "collinear"
     );
+    // A bow tie whose lobes' signed areas cancel is not called collinear.
+    let cancelling = why(vec![sq[0], sq[2], sq[1], sq[3]]);
+    assert!(cancelling.contains("crosses itself"), "{cancelling}");
     let mut bent = sq.to_vec();
     bent[2].z = 1e-6;
-    assert!(Polygon::from_vertices(bent).is_err(), "not planar");
+    let bent = why(bent);
+    assert!(
+        bent.contains("is 2.5e-7 from its plane (tolerance 1e-9)"),
+        "{bent}"
+    );
     let mut slightly = sq.to_vec();
     slightly[2].z = 1e-12;
     assert!(

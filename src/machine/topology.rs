@@ -6,8 +6,8 @@ use std::path::Path;
 
 use serde::Deserialize;
 
+use crate::error::fmt_num;
 use crate::error::{Error, Result};
-use crate::scene::load::fmt_num;
 
 /// The built-in default topology (`topology/ipsc-d5.ron`).
 pub const IPSC_D5: &str = include_str!("../../topology/ipsc-d5.ron");

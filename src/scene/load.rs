@@ -37,6 +37,7 @@ use std::path::Path;
 use super::model::{self, Node, SceneFile, Vector};
 use super::{Camera, Light, MAX_DEPTH_LIMIT, Material, MaterialId, Scene};
 use crate::csg::{CsgTree, NodeId, Op, Polygon, PrimId, Primitive, Shape};
+use crate::error::{fmt_num, fmt_sig};
 use crate::geom::{Affine, Vec3, frobenius_norm};
 use crate::{Error, Result};
 
@@ -1461,25 +1462,6 @@ fn parallel(a: Vec3, b: Vec3) -> bool {
 
 fn fmt_vec(v: Vector) -> String {
     format!("({}, {}, {})", fmt_num(v[0]), fmt_num(v[1]), fmt_num(v[2]))
-}
-
-/// A number as messages write it: plain up to seven characters (`5`,
-/// `0.25`, `1000000`), else the shortest of its plain and exponent forms
-/// (`1e-300`, not three hundred digits; `1e12`, `1234567.5`).
-pub(crate) fn fmt_num(x: f64) -> String {
-    let plain = format!("{x}");
-    if plain.len() <= 7 {
-        return plain;
-    }
-    [format!("{x:?}"), format!("{x:e}")]
-        .into_iter()
-        .fold(plain, |a, b| if b.len() < a.len() { b } else { a })
-}
-
-/// `x` to four significant digits, written as `fmt_num` writes it
-/// (`0.9254`, `7.071e-16`).
-fn fmt_sig(x: f64) -> String {
-    fmt_num(format!("{x:.3e}").parse().unwrap_or(x))
 }
 
 fn fmt_v3(v: Vec3) -> String {
