@@ -321,6 +321,13 @@ fn default_output(scene: &Path) -> PathBuf {
 
 pub(crate) fn check_writable_dir(path: &Path) -> Result<()> {
     let target = report::image_io::write_target(path);
+    if target.is_symlink() {
+        // Still a link after as many as the kernel follows: a loop.
+        return Err(Error::Usage(format!(
+            "{}: too many levels of symbolic links",
+            path.display()
+        )));
+    }
     let dir = folder_of(&target);
     if !dir.is_dir() {
         return Err(Error::Usage(format!(

@@ -1278,6 +1278,15 @@ fn an_output_through_a_symbolic_link_writes_its_target() {
         "{}",
         stderr(&o)
     );
+    symlink("loop2.png", dir.join("loop1.png")).unwrap();
+    symlink("loop1.png", dir.join("loop2.png")).unwrap();
+    let o = run(dir, &args("loop1.png"));
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("too many levels"), "{}", stderr(&o));
+    assert!(
+        dir.join("loop1.png").is_symlink(),
+        "the loop is left as it was"
+    );
     symlink("nowhere/x.png", dir.join("lost.png")).unwrap();
     let o = run(dir, &args("lost.png"));
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
