@@ -1270,29 +1270,21 @@ fn an_output_through_a_symbolic_link_writes_its_target() {
         let png = std::fs::read(dir.join(target)).unwrap();
         assert!(png.starts_with(b"\x89PNG"), "{target} is the render");
     }
+    // Refused before anything is written, with exit 2 and why.
+    let refused = |out: &'static str, why: &str| {
+        let o = run(dir, &args(out));
+        assert_eq!(o.status.code(), Some(2), "{out}: {}", stderr(&o));
+        assert!(stderr(&o).contains(why), "{out}: {}", stderr(&o));
+    };
     symlink(&scene, dir.join("scene.png")).unwrap();
-    let o = run(dir, &args("scene.png"));
-    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
-    assert!(
-        stderr(&o).contains("would replace the scene"),
-        "{}",
-        stderr(&o)
-    );
+    refused("scene.png", "would replace the scene");
     symlink("loop2.png", dir.join("loop1.png")).unwrap();
     symlink("loop1.png", dir.join("loop2.png")).unwrap();
-    let o = run(dir, &args("loop1.png"));
-    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
-    assert!(stderr(&o).contains("too many levels"), "{}", stderr(&o));
+    refused("loop1.png", "too many levels");
     assert!(
         dir.join("loop1.png").is_symlink(),
         "the loop is left as it was"
     );
     symlink("nowhere/x.png", dir.join("lost.png")).unwrap();
-    let o = run(dir, &args("lost.png"));
-    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
-    assert!(
-        stderr(&o).contains("nowhere does not exist"),
-        "{}",
-        stderr(&o)
-    );
+    refused("lost.png", "nowhere does not exist");
 }
