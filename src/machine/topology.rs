@@ -20,11 +20,41 @@ pub const MAX_DIMENSION: u32 = 10;
 struct TopologyFile {
     name: String,
     dimension: u32,
-    node_memory: String,
+    node_memory: SizeText,
     link_bandwidth_bytes_per_second: f64,
     link_latency_seconds: f64,
     message_overhead_seconds: f64,
     compute_speed: f64,
+}
+
+/// A memory size as the file gives it: text with a unit (`"4.5MiB"`), or a
+/// plain number of bytes, read as `--node-memory` reads it (`parse_size`).
+#[derive(Debug)]
+struct SizeText(String);
+
+impl<'de> Deserialize<'de> for SizeText {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        struct Visitor;
+        impl serde::de::Visitor<'_> for Visitor {
+            type Value = SizeText;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a memory size such as \"4.5MiB\", or a number of bytes")
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> std::result::Result<SizeText, E> {
+                Ok(SizeText(v.to_string()))
+            }
+            fn visit_u64<E: serde::de::Error>(self, v: u64) -> std::result::Result<SizeText, E> {
+                Ok(SizeText(v.to_string()))
+            }
+            fn visit_i64<E: serde::de::Error>(self, v: i64) -> std::result::Result<SizeText, E> {
+                Ok(SizeText(v.to_string()))
+            }
+            fn visit_f64<E: serde::de::Error>(self, v: f64) -> std::result::Result<SizeText, E> {
+                Ok(SizeText(v.to_string()))
+            }
+        }
+        d.deserialize_any(Visitor)
+    }
 }
 
 /// A validated topology.
@@ -82,17 +112,27 @@ impl Topology {
     }
 }
 
-/// Parses and validates topology text; `file` names it in messages.
+/// Parses and validates topology text; `file` names it in messages, and
+/// its extension picks the syntax, as for scenes: `.json` JSON, else RON.
 pub fn parse_topology(text: &str, file: &Path) -> Result<Topology> {
-    let t: TopologyFile = ron::Options::default()
-        .from_str(text)
-        .map_err(|e| Error::Syntax {
-            file: file.to_path_buf(),
-            line: e.span.start.line,
-            column: e.span.start.col,
-            message: e.code.to_string(),
-        })?;
+    use crate::scene::load::{json_syntax_error, ron_syntax_error};
+    let json = file
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"));
+    let t: TopologyFile = if json {
+        serde_json::from_str(text).map_err(|e| json_syntax_error(file, &e))?
+    } else {
+        ron::Options::default()
+            .from_str(text)
+            .map_err(|e| ron_syntax_error(text, file, &e))?
+    };
     let bad = |field: &str, message: String| Error::invalid(file, field, message);
+    if t.name.trim().is_empty() {
+        return Err(bad(
+            "name",
+            "name must not be empty: reports name the machine by it".into(),
+        ));
+    }
     if t.dimension > MAX_DIMENSION {
         return Err(bad(
             "dimension",
@@ -102,7 +142,7 @@ pub fn parse_topology(text: &str, file: &Path) -> Result<Topology> {
             ),
         ));
     }
-    let node_memory = parse_size(&t.node_memory).map_err(|m| bad("node_memory", m))?;
+    let node_memory = parse_size(&t.node_memory.0).map_err(|m| bad("node_memory", m))?;
     // Each value within a range wide enough for any machine worth
     // modelling and narrow enough that the virtual time of any run stays a
     // number: a compute speed of 1e-300 made it 2.5e296 s, a latency of
@@ -226,6 +266,51 @@ mod tests {
         assert!(e.contains("compute_speed"), "{e}");
         let text = IPSC_D5.replace("dimension: 5", "dimension: 40");
         assert!(parse_topology(&text, Path::new("t.ron")).is_err());
+        // Said as scene errors are, without the model's type names.
+        let e = parse_topology("(name: \"x\", dimension: 3)", Path::new("t.ron"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("missing field `node_memory` in the topology"),
+            "{e}"
+        );
+        let text = IPSC_D5.replace("name: \"ipsc-d5\"", "name: \" \"");
+        let e = parse_topology(&text, Path::new("t.ron"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("name must not be empty"), "{e}");
+        let text = IPSC_D5.replace("node_memory: \"4.5MiB\"", "node_memory: true");
+        let e = parse_topology(&text, Path::new("t.ron"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("expected a memory size"), "{e}");
+    }
+
+    /// A topology may be JSON (by its extension, as scenes are), and its
+    /// memory a plain number of bytes: the same machine either way.
+    #[test]
+    fn topologies_read_as_json_and_memory_as_bytes() {
+        let d5 = Topology::ipsc_d5();
+        let bytes = IPSC_D5.replace("node_memory: \"4.5MiB\"", "node_memory: 4718592");
+        assert_ne!(bytes, IPSC_D5);
+        assert_eq!(parse_topology(&bytes, Path::new("t.ron")).unwrap(), d5);
+        let json = format!(
+            r#"{{"name": "ipsc-d5", "dimension": 5, "node_memory": "4.5MiB",
+                "link_bandwidth_bytes_per_second": {}, "link_latency_seconds": {},
+                "message_overhead_seconds": {}, "compute_speed": {}}}"#,
+            d5.link_bandwidth, d5.link_latency, d5.message_overhead, d5.compute_speed
+        );
+        assert_eq!(parse_topology(&json, Path::new("t.json")).unwrap(), d5);
+        let e = parse_topology(
+            &json.replace("\"dimension\"", "\"dim\""),
+            Path::new("t.json"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.starts_with("t.json:1:") && e.contains("unknown field `dim`"),
+            "{e}"
+        );
     }
 
     /// Values that would make the virtual time of a run astronomical,

@@ -395,20 +395,37 @@ fn ron_options() -> ron::Options {
         .with_recursion_limit(RON_RECURSION_LIMIT)
 }
 
-/// RON or JSON text into the model.
-fn deserialize(text: &str, syntax: SceneSyntax, file: &Path) -> Result<SceneFile> {
-    let syntax_error = |line: usize, column: usize, message: String| Error::Syntax {
+/// `file`'s syntax error at 1-based `line` and `column`, on one line.
+fn syntax_error(file: &Path, line: usize, column: usize, message: String) -> Error {
+    Error::Syntax {
         file: file.to_path_buf(),
         line: line.max(1),
         column: column.max(1),
         message: one_line(&message),
-    };
+    }
+}
+
+/// A RON error in `text` as our messages say it, at the first character
+/// of what it is about (scene and topology files).
+pub(crate) fn ron_syntax_error(text: &str, file: &Path, e: &ron::error::SpannedError) -> Error {
+    let ron::error::Position { line, col } = e.span.start;
+    let (line, col) = skip_blanks(text, line, col);
+    syntax_error(file, line, col, ron_message(&e.code))
+}
+
+/// A JSON error as our messages say it (scene and topology files).
+pub(crate) fn json_syntax_error(file: &Path, e: &serde_json::Error) -> Error {
+    syntax_error(file, e.line(), e.column(), json_message(e))
+}
+
+/// RON or JSON text into the model.
+fn deserialize(text: &str, syntax: SceneSyntax, file: &Path) -> Result<SceneFile> {
+    let syntax_error =
+        |line: usize, column: usize, message: String| syntax_error(file, line, column, message);
     match syntax {
-        SceneSyntax::Ron => ron_options().from_str::<SceneFile>(text).map_err(|e| {
-            let ron::error::Position { line, col } = e.span.start;
-            let (line, col) = skip_blanks(text, line, col);
-            syntax_error(line, col, ron_message(&e.code))
-        }),
+        SceneSyntax::Ron => ron_options()
+            .from_str::<SceneFile>(text)
+            .map_err(|e| ron_syntax_error(text, file, &e)),
         SceneSyntax::Json => {
             // serde_json's own guard (128 levels) is off, so bound the
             // nesting here before serde_json recurses into it.
@@ -419,7 +436,7 @@ fn deserialize(text: &str, syntax: SceneSyntax, file: &Path) -> Result<SceneFile
             de.disable_recursion_limit();
             let model = <SceneFile as serde::Deserialize>::deserialize(&mut de)
                 .and_then(|m| de.end().map(|()| m));
-            model.map_err(|e| syntax_error(e.line(), e.column(), json_message(&e)))
+            model.map_err(|e| json_syntax_error(file, &e))
         }
         SceneSyntax::Nff => Ok(super::nff::parse_nff(text, file)?.model),
     }
@@ -485,6 +502,7 @@ fn ron_message(code: &ron::Error) -> String {
         Some("Camera") => " in the camera".into(),
         Some("Light") => " in a light".into(),
         Some("Material") => " in a material".into(),
+        Some("TopologyFile") => " in the topology".into(),
         Some(o) => format!(" in {o}"),
     };
     match code {
