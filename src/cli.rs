@@ -531,6 +531,27 @@ pub fn progress_bar(total: u64, quiet: bool, what: &str) -> ProgressBar {
     pb
 }
 
+/// Runs `f` under a spinner that says `what` with its clock running, on a
+/// terminal and unless `quiet`: for work of unknown length, such as the
+/// plan `inspect` makes (20 s for the level-6 sphereflake at 256x256, and
+/// as long again to plan larger machines for a refusal's advice).
+fn spinning<T>(quiet: bool, what: &str, f: impl FnOnce() -> T) -> T {
+    let pb = if quiet || !std::io::stderr().is_terminal() {
+        ProgressBar::hidden()
+    } else {
+        let pb = ProgressBar::new_spinner();
+        pb.set_style(
+            ProgressStyle::with_template("{prefix} {spinner} {elapsed_precise}")
+                .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+        );
+        pb.set_prefix(what.to_string());
+        pb
+    };
+    let out = ticking(&pb, f);
+    pb.finish_and_clear();
+    out
+}
+
 /// The bar's time left, at the mean rate since its first unit of work.
 /// indicatif's own estimate leans on the first units, which come slowly
 /// (the machine fills its nodes with paths before rows finish, and the
@@ -969,7 +990,9 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
     // more super cells on more nodes, `CellOptions::min_super_cells`).
     let topo = a.machine.topology()?;
     let mopts = a.machine.options(width, height, 1, a.bsp.into())?;
-    let plan = machine::host::Plan::new(&scene, &topo, &mopts)?;
+    let plan = spinning(a.quiet, "plan", || {
+        machine::host::Plan::new(&scene, &topo, &mopts)
+    })?;
     let cs = &plan.cells;
     let s = &cs.stats;
     let front = cs.region(crate::cells::Region::Front);
@@ -1080,7 +1103,9 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
         held as f64 / s.bytes.max(1) as f64
     )?;
     if let Err(e) = plan.check(&scene, &topo) {
-        let e = machine::host::advise(e, &scene, &topo, &mopts);
+        let e = spinning(a.quiet, "plan larger machines", || {
+            machine::host::advise(e, &scene, &topo, &mopts)
+        });
         outln!("does not fit: {e}")?;
     }
     report::stats::extend(
