@@ -534,7 +534,8 @@ pub fn progress_bar(total: u64, quiet: bool, what: &str) -> ProgressBar {
 /// Runs `f` under a spinner that says `what` with its clock running, on a
 /// terminal and unless `quiet`: for work of unknown length, such as the
 /// plan `inspect` makes (20 s for the level-6 sphereflake at 256x256, and
-/// as long again to plan larger machines for a refusal's advice).
+/// as long again to plan larger machines for a refusal's advice), or the
+/// encoding of a large image.
 fn spinning<T>(quiet: bool, what: &str, f: impl FnOnce() -> T) -> T {
     let pb = if quiet || !std::io::stderr().is_terminal() {
         ProgressBar::hidden()
@@ -721,7 +722,10 @@ fn run_render(a: RenderArgs) -> Result<()> {
         }
     };
     let machine_stats = &out.machine;
-    report::write_film(&job.output, &out.film)?;
+    // A large image takes seconds to encode (4096x4096 as PNG: 2.5 s).
+    spinning(job.quiet, "write", || {
+        report::write_film(&job.output, &out.film)
+    })?;
     let metrics = job
         .reference
         .as_ref()
