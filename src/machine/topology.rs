@@ -255,34 +255,30 @@ mod tests {
 
     #[test]
     fn bad_topologies_name_the_place() {
-        let e = parse_topology("(name: \"x\", dimension: 3)", Path::new("t.ron"))
-            .unwrap_err()
-            .to_string();
+        let refused = |text: &str| {
+            parse_topology(text, Path::new("t.ron"))
+                .unwrap_err()
+                .to_string()
+        };
+        let ipsc_with = |from: &str, to: &str| {
+            let text = IPSC_D5.replace(from, to);
+            assert_ne!(text, IPSC_D5, "{from}");
+            refused(&text)
+        };
+        let e = refused("(name: \"x\", dimension: 3)");
         assert!(e.starts_with("t.ron:1:"), "{e}");
-        let text = IPSC_D5.replace("compute_speed: 0.0000625", "compute_speed: -1.0");
-        let e = parse_topology(&text, Path::new("t.ron"))
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("compute_speed"), "{e}");
-        let text = IPSC_D5.replace("dimension: 5", "dimension: 40");
-        assert!(parse_topology(&text, Path::new("t.ron")).is_err());
         // Said as scene errors are, without the model's type names.
-        let e = parse_topology("(name: \"x\", dimension: 3)", Path::new("t.ron"))
-            .unwrap_err()
-            .to_string();
         assert!(
             e.contains("missing field `node_memory` in the topology"),
             "{e}"
         );
-        let text = IPSC_D5.replace("name: \"ipsc-d5\"", "name: \" \"");
-        let e = parse_topology(&text, Path::new("t.ron"))
-            .unwrap_err()
-            .to_string();
+        let e = ipsc_with("compute_speed: 0.0000625", "compute_speed: -1.0");
+        assert!(e.contains("compute_speed"), "{e}");
+        let e = ipsc_with("dimension: 5", "dimension: 40");
+        assert!(e.contains("dimension must be at most 10"), "{e}");
+        let e = ipsc_with("name: \"ipsc-d5\"", "name: \" \"");
         assert!(e.contains("name must not be empty"), "{e}");
-        let text = IPSC_D5.replace("node_memory: \"4.5MiB\"", "node_memory: true");
-        let e = parse_topology(&text, Path::new("t.ron"))
-            .unwrap_err()
-            .to_string();
+        let e = ipsc_with("node_memory: \"4.5MiB\"", "node_memory: true");
         assert!(e.contains("expected a memory size"), "{e}");
     }
 
