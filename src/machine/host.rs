@@ -1161,6 +1161,11 @@ struct Run {
     pieces: FxHashMap<u64, (Option<(u16, bool)>, u16)>,
     /// Per node, replies gathered while taking one envelope.
     outbox: Vec<Vec<u8>>,
+    /// Per node, whether it has started every sample it owns
+    /// (`ToHost::Generated`): credit returned to it would lie idle.
+    all_started: Vec<bool>,
+    /// The next node `pass_on` tries.
+    next_taker: usize,
 }
 
 impl Run {
@@ -1187,6 +1192,8 @@ impl Run {
             credit: vec![0; nodes],
             outbox: vec![Vec::new(); nodes],
             pieces: FxHashMap::default(),
+            all_started: vec![false; nodes],
+            next_taker: 0,
         };
         // Before the node threads start (`prefault`); the film is already.
         prefault(&mut run.seen);
@@ -1352,6 +1359,31 @@ impl Run {
         Ok(())
     }
 
+    /// Hands the credit due to nodes that have started all their samples
+    /// to nodes that have not, one at a time in turn. The plan's
+    /// reservation bounds the paths in flight on the whole machine (every
+    /// node keeps room for all of them, `Plan::window`), not per node, so
+    /// a node may run more than its window while the machine's total stays
+    /// within it.
+    fn pass_on(&mut self) {
+        let mut spare: u32 = (0..self.nodes)
+            .filter(|&o| self.all_started[o])
+            .map(|o| std::mem::take(&mut self.credit[o]))
+            .sum();
+        let takers = self.all_started.iter().filter(|&&s| !s).count();
+        if takers == 0 {
+            return;
+        }
+        while spare > 0 {
+            let o = self.next_taker % self.nodes;
+            self.next_taker = o + 1;
+            if !self.all_started[o] {
+                self.credit[o] += 1;
+                spare -= 1;
+            }
+        }
+    }
+
     /// Takes one message from a node.
     fn take(
         &mut self,
@@ -1376,6 +1408,7 @@ impl Run {
                     .map_err(|e| Error::Render(format!("node {node}: {e}")))?;
                     progress(self.finished - before);
                     if !self.stopped {
+                        self.pass_on();
                         for o in 0..self.nodes {
                             let c = std::mem::take(&mut self.credit[o]);
                             if c > 0 {
@@ -1384,7 +1417,10 @@ impl Run {
                         }
                     }
                 }
-                ToHost::Generated { samples, .. } => {
+                ToHost::Generated { node, samples } => {
+                    if let Some(s) = self.all_started.get_mut(node as usize) {
+                        *s = true;
+                    }
                     self.generated += 1;
                     self.expected += samples;
                 }
@@ -1472,6 +1508,32 @@ mod tests {
                 plan.cells.stats.super_cells
             );
         }
+    }
+
+    /// Credit due to nodes that have started all their samples goes to
+    /// those that have not, in turn; none is made or lost while some node
+    /// can use it.
+    #[test]
+    fn credit_of_nodes_done_starting_goes_to_the_others() {
+        let model = LinkModel {
+            latency: 0.0,
+            bandwidth: 1.0,
+            overhead: 0.0,
+            compute_speed: 1.0,
+        };
+        let mut run = Run::new(Film::new(4, 4), 1, 4, model);
+        run.credit = vec![3, 1, 2, 0];
+        run.all_started = vec![true, false, true, false];
+        run.pass_on();
+        assert_eq!(run.credit, vec![0, 4, 0, 2]);
+        run.credit = vec![1, 0, 0, 0];
+        run.pass_on();
+        assert_eq!(run.credit.iter().sum::<u32>(), 1);
+        assert_eq!(run.credit[0] + run.credit[2], 0);
+        // Nobody left to start anything: the credit has no use.
+        run.all_started = vec![true; 4];
+        run.pass_on();
+        assert_eq!(run.credit, vec![0; 4]);
     }
 
     /// A refusal's sizes never read 0.00, and the memory it asks for,
