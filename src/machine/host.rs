@@ -1,7 +1,8 @@
 //! The coordinator (the iPSC's host): builds the subdivision, runs the
 //! cost pre-pass and the mapping, sizes the flow-control windows against
 //! the nodes' budgets (refusing what cannot fit), loads the nodes, then
-//! only collects finished samples, returns credits, and detects the end
+//! only collects finished samples, returns credits (passing on those of
+//! nodes that have started all their samples), and detects the end
 //! exactly: every node reports how many samples it started, and the run
 //! ends when that many have finished (no time-outs). It never traces.
 
