@@ -517,9 +517,14 @@ fn load_for_run(
     Ok((scene, width, height))
 }
 
+/// Whether progress shows: on a terminal, unless `quiet`.
+fn shows_progress(quiet: bool) -> bool {
+    !quiet && std::io::stderr().is_terminal()
+}
+
 /// A progress bar over `total` units on a terminal, hidden otherwise.
 pub fn progress_bar(total: u64, quiet: bool, what: &str) -> ProgressBar {
-    if quiet || !std::io::stderr().is_terminal() {
+    if !shows_progress(quiet) {
         return ProgressBar::hidden();
     }
     let pb = ProgressBar::new(total);
@@ -541,7 +546,7 @@ pub fn progress_bar(total: u64, quiet: bool, what: &str) -> ProgressBar {
 /// as long again to plan larger machines for a refusal's advice), or the
 /// encoding of a large image.
 fn spinning<T>(quiet: bool, what: &str, f: impl FnOnce() -> T) -> T {
-    let pb = if quiet || !std::io::stderr().is_terminal() {
+    let pb = if !shows_progress(quiet) {
         ProgressBar::hidden()
     } else {
         let pb = ProgressBar::new_spinner();

@@ -115,10 +115,10 @@ impl Topology {
 /// Parses and validates topology text; `file` names it in messages, and
 /// its extension picks the syntax, as for scenes: `.json` JSON, else RON.
 pub fn parse_topology(text: &str, file: &Path) -> Result<Topology> {
+    use crate::scene::SceneSyntax;
     use crate::scene::load::{json_syntax_error, ron_syntax_error};
-    let json = file
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("json"));
+    // The scenes' rule for `.json`; any other name is RON here.
+    let json = matches!(SceneSyntax::from_path(file), Ok(SceneSyntax::Json));
     let t: TopologyFile = if json {
         serde_json::from_str(text).map_err(|e| json_syntax_error(file, &e))?
     } else {
