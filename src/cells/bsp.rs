@@ -7,7 +7,7 @@
 
 use std::collections::VecDeque;
 
-use super::projection::{Rect, contains};
+use super::projection::{Rect, contains, finite_span};
 
 /// How the BSP chooses the segment whose line splits a region (section 3.2
 /// discusses the choice).
@@ -94,6 +94,11 @@ pub struct Partition {
     /// or a hot region (`partition_in`). Without any, the partition is
     /// the one a single node builds.
     pub forced: u64,
+    /// The span of the rectangles' finite coordinates (`finite_span`):
+    /// where the machine's hot spots may cut a super cell that reaches to
+    /// infinity, such as the one super cell of a region behind the eye
+    /// (`machine::mapping::hot`).
+    pub span: ([f64; 2], [f64; 2]),
 }
 
 /// Limits that bound the subdivision when rectangles pile up
@@ -195,7 +200,10 @@ pub fn partition_in(
     // uneven (predicted), which made its run 1.5 and 4 times as long in
     // virtual time as on 32.
     let max_leaves = (16 * n + 64).max(4 * min_leaves);
-    let mut out = Partition::default();
+    let mut out = Partition {
+        span: finite_span(rects.iter().flatten()),
+        ..Partition::default()
+    };
     out.nodes.push(BspNode::Leaf(0));
     let mut queue = VecDeque::new();
     let sorted = if choice == SegmentChoice::Sampled {

@@ -39,6 +39,24 @@ impl Region {
     }
 }
 
+/// The span of the finite coordinates of `rects`, per axis (`lo > hi`
+/// along an axis where none is finite): where unbounded rectangles (the
+/// partition is of the whole plane) are clamped to be measured.
+pub fn finite_span<'a>(rects: impl IntoIterator<Item = &'a Rect>) -> ([f64; 2], [f64; 2]) {
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for r in rects {
+        for k in 0..2 {
+            for v in [r.lo(k), r.hi(k)] {
+                if v.is_finite() {
+                    lo[k] = lo[k].min(v);
+                    hi[k] = hi[k].max(v);
+                }
+            }
+        }
+    }
+    (lo, hi)
+}
+
 /// A 2D half-open rectangle `[x0, x1) × [y0, y1)` of the screen plane;
 /// bounds may be infinite (the plane is infinite, section 3.2).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]

@@ -22,6 +22,7 @@
 //! * `EqualArea`, the naive split, weighs each super cell by its share of
 //!   the image, so that every node owns as many pixels.
 
+use crate::cells::projection::finite_span;
 use crate::cells::{CellStructure, CellTracer, Copies, Hot, Move, Rect, Region};
 use crate::error::{Result, start_worker};
 use crate::machine::routing::gray;
@@ -256,10 +257,10 @@ pub const HOT_MIN_PIXELS: f64 = 16.0;
 
 /// The parts of each region's plane where the build must split its super
 /// cells smaller (`bsp::Hot`), by the work `work` estimates per super cell
-/// for `2^d` nodes: each front super cell of more than `HOT_LOAD` of a
-/// node's mean load, into pieces of at most `HOT_PIECE` of it (supposing
-/// its work spread evenly over its rectangle) and at least `HOT_MIN_PIXELS`
-/// pixels of `cam`'s `width` by `height` image. An unbounded super cell
+/// for `2^d` nodes: each super cell of more than `HOT_LOAD` of a node's
+/// mean load, into pieces of at most `HOT_PIECE` of it (supposing its work
+/// spread evenly over its rectangle) and at least `HOT_MIN_PIXELS` pixels
+/// of `cam`'s `width` by `height` image. An unbounded super cell
 /// (the partition is of the whole plane) is cut within the span of the
 /// region's finite coordinates, and, with `to_edges`, of the screen window
 /// too, since its pixels may lie past the first, out to the screen's edges.
@@ -271,7 +272,7 @@ pub const HOT_MIN_PIXELS: f64 = 16.0;
 /// between nodes, the floor's pieces sent them across so often that the
 /// plan kept no split at all (`Plan::new`), and the render took 717-729
 /// virtual seconds against 567-600. Behind the eye, where no pixel is,
-/// super cells are left as they are.
+/// pieces are measured against the span of the region's primitives.
 pub fn hot(
     cs: &CellStructure,
     work: &[Vec<f64>; 2],
@@ -282,51 +283,51 @@ pub fn hot(
     let mean = work.iter().flatten().sum::<f64>() / (1u64 << d) as f64;
     let pixel_area = (2.0 * cam.half_w / f64::from(width)) * (2.0 * cam.half_h / f64::from(height));
     Region::BOTH.map(|r| {
-        let supers = &cs.region(r).supers;
-        let (mut lo, mut hi) = finite_span(supers);
-        if to_edges {
-            for (k, half) in [cam.half_w, cam.half_h].into_iter().enumerate() {
-                lo[k] = lo[k].min(-half);
-                hi[k] = hi[k].max(half);
+        let rc = cs.region(r);
+        let supers = &rc.supers;
+        let (mut lo, mut hi) = finite_span(supers.iter().map(|s| &s.rect));
+        let min_area = match r {
+            Region::Front => {
+                if to_edges {
+                    for (k, half) in [cam.half_w, cam.half_h].into_iter().enumerate() {
+                        lo[k] = lo[k].min(-half);
+                        hi[k] = hi[k].max(half);
+                    }
+                }
+                HOT_MIN_PIXELS * pixel_area
             }
-        }
+            Region::Back => {
+                // Behind the eye the cost model often keeps one super cell
+                // for the whole plane (no pixel's primary ray weighs it),
+                // without a finite coordinate: cut within the span of the
+                // region's primitives, into pieces no finer than the
+                // front's, counting that span as an image of as many
+                // pixels.
+                let (plo, phi) = rc.partition.span;
+                for k in 0..2 {
+                    lo[k] = lo[k].min(plo[k]);
+                    hi[k] = hi[k].max(phi[k]);
+                }
+                let area = (hi[0] - lo[0]) * (hi[1] - lo[1]);
+                HOT_MIN_PIXELS * area / (f64::from(width) * f64::from(height))
+            }
+        };
         let span = (lo, hi);
         supers
             .iter()
             .zip(&work[r as usize])
-            .filter(|&(_, &w)| r == Region::Front && d > 0 && w > HOT_LOAD * mean)
+            .filter(|&(_, &w)| d > 0 && w > HOT_LOAD * mean)
             .filter_map(|(s, &w)| {
                 let [Some((x0, x1)), Some((y0, y1))] = clamped(&s.rect, span) else {
                     return None;
                 };
                 let rect = Rect { x0, x1, y0, y1 };
                 let area = (rect.x1 - rect.x0) * (rect.y1 - rect.y0);
-                let max_area =
-                    (area / (w / (HOT_PIECE * mean)).ceil()).max(HOT_MIN_PIXELS * pixel_area);
+                let max_area = (area / (w / (HOT_PIECE * mean)).ceil()).max(min_area);
                 (area > max_area).then_some(Hot { rect, max_area })
             })
             .collect()
     })
-}
-
-/// The span of the finite coordinates of the super cells' rectangles, per
-/// axis (lo > hi where there is none).
-fn finite_span(supers: &[crate::cells::SuperCell]) -> ([f64; 2], [f64; 2]) {
-    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-    for s in supers {
-        for (k, v) in [
-            (0, s.rect.x0),
-            (0, s.rect.x1),
-            (1, s.rect.y0),
-            (1, s.rect.y1),
-        ] {
-            if v.is_finite() {
-                lo[k] = lo[k].min(v);
-                hi[k] = hi[k].max(v);
-            }
-        }
-    }
-    (lo, hi)
 }
 
 /// `r`'s extent along each axis clamped to `span` (`finite_span`); None
@@ -667,7 +668,7 @@ fn items(cs: &CellStructure, weight: &[Vec<f64>; 2], r: Region) -> Vec<Item> {
     let rc = cs.region(r);
     // Unbounded rectangles (the partition is of the whole plane) are
     // clamped to the span of the finite coordinates.
-    let span = finite_span(&rc.supers);
+    let span = finite_span(rc.supers.iter().map(|s| &s.rect));
     rc.supers
         .iter()
         .enumerate()
