@@ -1139,6 +1139,10 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
         held as f64 / 1048576.0,
         held as f64 / s.bytes.max(1) as f64
     )?;
+    // What the plan's splits and mapping came to: the render's busy
+    // imbalance is this, give or take the pre-pass's error.
+    let uneven = machine::mapping::predicted_imbalance(&plan.work, &plan.owner, topo.dimension);
+    outln!("predicted imbalance {uneven:.3} (the most estimated work of a node against the mean)")?;
     if let Err(e) = plan.check(&scene, &topo) {
         let e = spinning(a.quiet, "plan larger machines", || {
             machine::host::advise(e, &scene, &topo, &mopts)
@@ -1156,6 +1160,7 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
             ("window", json!(plan.window)),
             ("split_super_cells", json!(plan.split_super_cells)),
             ("subdivision", json!(plan.subdivision.name())),
+            ("predicted_imbalance", num(uneven)),
             ("per_node", json!(nodes_json)),
         ],
     );

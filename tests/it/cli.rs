@@ -924,6 +924,23 @@ fn inspect_prints_the_subdivision_and_every_nodes_share() {
             .unwrap();
     assert_eq!(v["primitives"], 203);
     assert_eq!(v["nodes"], 32);
+    // The predicted imbalance is the node rows' most work against their
+    // mean, in the text and the JSON.
+    let work: Vec<f64> = rows.iter().map(|w| w[7].parse().unwrap()).collect();
+    let expect = work.iter().cloned().fold(0.0, f64::max) / (work.iter().sum::<f64>() / 32.0);
+    let said: f64 = out
+        .split("predicted imbalance ")
+        .nth(1)
+        .and_then(|s| s.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no predicted imbalance in\n{out}"));
+    let json = v["predicted_imbalance"]
+        .as_f64()
+        .expect("predicted_imbalance");
+    assert!(
+        (said - expect).abs() < 0.01 * expect && (json - said).abs() < 0.001,
+        "{said} and {json} against {expect}"
+    );
     let per_cell = v["primitives_per_cell"]["max"]
         .as_u64()
         .expect("max per cell");
