@@ -787,6 +787,10 @@ fn run_render(a: RenderArgs) -> Result<()> {
                 eprintln!("hypercast: hint: {hint}");
             }
             let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+            let usable = ms.per_node.len().min(cores);
+            if let Some(note) = busy_host_note(ms.host_share(cores), usable) {
+                eprintln!("hypercast: note: {note}");
+            }
             if !job.machine_chosen
                 && let Some(hint) = cores_hint(ms.per_node.len(), cores, stats.wall_seconds)
             {
@@ -854,6 +858,20 @@ fn cores_hint(nodes: usize, cores: usize, wall_seconds: f64) -> Option<String> {
             counted(cores, "core")
         )
     })
+}
+
+/// Said where the nodes had less than half the host's cores they could
+/// use (`MachineStats::host_share`): other work on the host, whose turns
+/// the wall time counts and the virtual time does not (a node's clock
+/// follows its own CPU time).
+fn busy_host_note(share: Option<f64>, usable: usize) -> Option<String> {
+    let share = share.filter(|&s| s < 0.5)?;
+    Some(format!(
+        "the nodes had {:.0}% of the {} they could use while they ran (other work on this host?): \
+         the wall time overstates the run; the virtual time counts each node's own CPU time",
+        100.0 * share,
+        counted(usable, "core")
+    ))
 }
 
 fn stats_json(job: &RenderJob, out: &RenderOutcome, m: Option<&ImageMetrics>) -> serde_json::Value {
@@ -1243,6 +1261,12 @@ fn run_scale(a: ScaleArgs) -> Result<()> {
     pb.finish_and_clear();
     let rows = rows?;
     out!("{}", report::scale::table(&rows))?;
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    for r in &rows {
+        if let Some(note) = busy_host_note(r.host_share, r.nodes.min(cores)) {
+            eprintln!("hypercast: note: at d = {}, {note}", r.dimension);
+        }
+    }
     // Made only now, so that a refused scene or dimension leaves nothing
     // behind (the table above is printed either way).
     std::fs::create_dir_all(&a.out).map_err(|e| Error::Write {
@@ -1328,6 +1352,34 @@ mod tests {
         assert_eq!(cores_hint(32, 2, 0.5), None, "a quick render needs no hint");
         assert_eq!(cores_hint(2, 2, 2.8), None, "one node per core already");
         assert_eq!(cores_hint(32, 64, 2.8), None);
+    }
+
+    /// A run that had less than half the cores it could use says so; a
+    /// run too short to tell, or one that had them, does not.
+    #[test]
+    fn a_starved_run_is_noted() {
+        let note = super::busy_host_note(Some(0.18), 2).expect("a note");
+        assert!(note.contains("18% of the 2 cores"), "{note}");
+        assert!(
+            super::busy_host_note(Some(0.2), 1)
+                .unwrap()
+                .contains("of the 1 core ")
+        );
+        assert_eq!(super::busy_host_note(Some(0.93), 2), None);
+        assert_eq!(super::busy_host_note(None, 2), None);
+        let stats = crate::machine::MachineStats {
+            run_seconds: 16.0,
+            run_cpu_seconds: 5.6,
+            per_node: vec![Default::default(); 32],
+            ..Default::default()
+        };
+        assert_eq!(stats.host_share(2), Some(0.175));
+        assert_eq!(stats.host_share(64), Some(5.6 / 16.0 / 32.0));
+        let short = crate::machine::MachineStats {
+            run_seconds: 0.05,
+            ..stats
+        };
+        assert_eq!(short.host_share(2), None);
     }
 
     /// The bar's time left is the mean rate's since the first unit, and

@@ -65,6 +65,10 @@ pub struct ScaleRow {
     /// Where the virtual efficiency goes (`EfficiencyFactors`), medians
     /// over the rounds.
     pub factors: EfficiencyFactors,
+    /// The share of the host's cores the nodes had while they ran
+    /// (`MachineStats::host_share`), median over the rounds: well under 1,
+    /// other work on the host made the wall times unfit to compare.
+    pub host_share: Option<f64>,
 }
 
 /// A run's virtual efficiency against the first dimension's run of the
@@ -289,6 +293,7 @@ pub fn measure(
     let Some(base) = runs.first() else {
         return Ok(rows);
     };
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     for (((&d, t), of_d), eq) in dims.iter().zip(&machines).zip(&runs).zip(&equal_area) {
         let wall = median(of_d.iter().map(|r| r.wall_seconds).collect());
         let virt = median(of_d.iter().map(|r| r.virtual_seconds).collect());
@@ -361,6 +366,11 @@ pub fn measure(
             ),
             imbalance_work: machine::max_over_mean(rep.per_node.iter().map(counted_work)),
             factors,
+            host_share: of_d
+                .iter()
+                .map(|r| r.host_share(cores))
+                .collect::<Option<Vec<f64>>>()
+                .map(median),
         });
     }
     Ok(rows)
