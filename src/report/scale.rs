@@ -376,7 +376,7 @@ pub fn measure(
     Ok(rows)
 }
 
-const HEADER: [&str; 28] = [
+const HEADER: [&str; 29] = [
     "dimension",
     "nodes",
     "wall_seconds",
@@ -405,9 +405,10 @@ const HEADER: [&str; 28] = [
     "cost_ratio",
     "utilisation",
     "waiting",
+    "host_share",
 ];
 
-fn fields(r: &ScaleRow) -> [String; 28] {
+fn fields(r: &ScaleRow) -> [String; 29] {
     [
         r.dimension.to_string(),
         r.nodes.to_string(),
@@ -440,6 +441,8 @@ fn fields(r: &ScaleRow) -> [String; 28] {
         format!("{:.3}", r.factors.cost_ratio),
         format!("{:.3}", r.factors.utilisation),
         format!("{:.3}", r.factors.waiting),
+        // Empty where the runs were too short to tell.
+        r.host_share.map_or(String::new(), |s| format!("{s:.3}")),
     ]
 }
 

@@ -1168,6 +1168,15 @@ fn scale_writes_the_table_csv_and_plot() {
         table.contains("utilisation") && table.contains("waiting"),
         "{table}"
     );
+    // The share of the host the nodes had: a positive number, or empty
+    // where the runs were too short to tell.
+    for r in &rows {
+        let share = r[col("host_share")];
+        assert!(
+            share.is_empty() || share.parse::<f64>().is_ok_and(|s| s > 0.0),
+            "{csv}"
+        );
+    }
     // One node holds the whole structure; more nodes hold more of it
     // together (every one the skeleton), and send rays to each other.
     assert_eq!(num(&rows[0], "structure_ratio"), 1.0);
