@@ -770,6 +770,11 @@ fn stats_count_none_of_what_a_scene_cannot_use() {
 
 /// `inspect`'s per-node rows (node, super cells, cells, primitives,
 /// memory, structure, work), split into words.
+/// The number in `text` after the first `marker`, up to `end`.
+fn number_after<T: std::str::FromStr>(text: &str, marker: &str, end: char) -> Option<T> {
+    text.split(marker).nth(1)?.split(end).next()?.parse().ok()
+}
+
 fn node_rows(out: &str) -> Vec<Vec<&str>> {
     out.lines()
         .map(|l| l.split_whitespace().collect::<Vec<_>>())
@@ -913,11 +918,7 @@ fn inspect_prints_the_subdivision_and_every_nodes_share() {
     // The overlay's key: the outlines' scale ends at the most primitives
     // of a super cell, which is the most of any cell in it at least.
     let err = stderr(&o);
-    let most: u64 = err
-        .split("blue 1 to red ")
-        .nth(1)
-        .and_then(|s| s.split(',').next())
-        .and_then(|n| n.parse().ok())
+    let most: u64 = number_after(&err, "blue 1 to red ", ',')
         .unwrap_or_else(|| panic!("no key for the overlay in {err}"));
     let v: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(tmp.path().join("inspect.json")).unwrap())
@@ -928,11 +929,7 @@ fn inspect_prints_the_subdivision_and_every_nodes_share() {
     // mean, in the text and the JSON.
     let work: Vec<f64> = rows.iter().map(|w| w[7].parse().unwrap()).collect();
     let expect = work.iter().cloned().fold(0.0, f64::max) / (work.iter().sum::<f64>() / 32.0);
-    let said: f64 = out
-        .split("predicted imbalance ")
-        .nth(1)
-        .and_then(|s| s.split(' ').next())
-        .and_then(|n| n.parse().ok())
+    let said: f64 = number_after(&out, "predicted imbalance ", ' ')
         .unwrap_or_else(|| panic!("no predicted imbalance in\n{out}"));
     let json = v["predicted_imbalance"]
         .as_f64()
