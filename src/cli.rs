@@ -862,8 +862,10 @@ fn cores_hint(nodes: usize, cores: usize, wall_seconds: f64) -> Option<String> {
 
 /// Said where the nodes had less than half the host's cores they could
 /// use (`MachineStats::host_share`): other work on the host, whose turns
-/// the wall time counts and the virtual time does not (a node's clock
-/// follows its own CPU time).
+/// the wall time counts in full and the virtual time hardly (a node's
+/// clock follows its own CPU time: the level-5 sphereflake at d = 5 took
+/// 20 s instead of 2.1-2.4 s beside four busy loops, and 2,872 virtual
+/// seconds against 2,673).
 fn busy_host_note(share: Option<f64>, usable: usize) -> Option<String> {
     let share = share.filter(|&s| s < 0.5)?;
     Some(format!(
