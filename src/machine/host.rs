@@ -521,7 +521,7 @@ impl Plan {
             if !more[0].is_empty() && !more[1].is_empty() {
                 tries.push([more[0].clone(), Vec::new()]);
             }
-            let mut taken = None;
+            let (mut taken, mut passing) = (None, None);
             for more in tries {
                 let mut next_hot = hot.clone();
                 for (all, m) in next_hot.iter_mut().zip(more) {
@@ -566,13 +566,18 @@ impl Plan {
                 // Far from even, a round that is not may still be built
                 // on: the next one starts from its finer pieces
                 // (`HOT_PASS`), and the most even plan seen is kept.
+                // A try that evens the loads goes before one that passes.
                 let passes = !evens && was > HOT_PASS && round + 1 < HOT_ROUNDS;
-                if !scatters && (evens || passes) {
-                    taken = Some(((next, next_hot, next_work, next_owner, next_moves), now));
+                let tried = ((next, next_hot, next_work, next_owner, next_moves), now);
+                if !scatters && evens {
+                    taken = Some(tried);
                     break;
                 }
+                if !scatters && passes && passing.is_none() {
+                    passing = Some(tried);
+                }
             }
-            let Some((next, now)) = taken else {
+            let Some((next, now)) = taken.or(passing) else {
                 break;
             };
             let was = mapping::predicted_imbalance(&work, &owner, d);
