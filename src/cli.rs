@@ -485,11 +485,7 @@ fn adaptive_option(threshold: f64, extra_spp: u32) -> Result<Adaptive> {
 }
 
 fn host_threads(t: Option<usize>) -> Result<usize> {
-    let threads = t.unwrap_or_else(|| {
-        std::thread::available_parallelism()
-            .map(|n| n.get())
-            .unwrap_or(1)
-    });
+    let threads = t.unwrap_or_else(crate::trace::host_cores);
     if threads == 0 {
         return Err(Error::Usage("--threads must be at least 1".into()));
     }
@@ -786,7 +782,7 @@ fn run_render(a: RenderArgs) -> Result<()> {
             {
                 eprintln!("hypercast: hint: {hint}");
             }
-            let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+            let cores = crate::trace::host_cores();
             let usable = ms.per_node.len().min(cores);
             if let Some(note) = busy_host_note(ms.host_share(cores), usable) {
                 eprintln!("hypercast: note: {note}");
@@ -1263,7 +1259,7 @@ fn run_scale(a: ScaleArgs) -> Result<()> {
     pb.finish_and_clear();
     let rows = rows?;
     out!("{}", report::scale::table(&rows))?;
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let cores = crate::trace::host_cores();
     for r in &rows {
         if let Some(note) = busy_host_note(r.host_share, r.nodes.min(cores)) {
             eprintln!("hypercast: note: at d = {}, {note}", r.dimension);

@@ -1334,7 +1334,7 @@ fn cut_super_cells(
     };
     let threads = match threads {
         0 if leaves.iter().map(|l| l.prims.len()).sum::<usize>() < PARALLEL_CUT_PRIMS => 1,
-        0 => std::thread::available_parallelism().map_or(1, |n| n.get().min(8)),
+        0 => crate::trace::host_cores().min(8),
         n => n,
     };
     if threads < 2 {

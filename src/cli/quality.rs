@@ -80,7 +80,7 @@ pub fn run(a: QualityArgs) -> Result<()> {
     let knobs = quality::knobs(scene.max_depth, a.max_spp);
     let model_knobs = quality::model_knobs(&knobs, scene.max_depth);
     // The model's error needs a core per node: d with 2^d <= cores.
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let cores = crate::trace::host_cores();
     let dims = calibrate::host_dimensions(cores);
     let units = |ks: &[rq::Knobs]| -> u64 {
         ks.iter()

@@ -367,7 +367,7 @@ fn prepass(
     // On the host's cores, before any node starts, rows shared out in
     // turn. Each pixel's work is counted by its own rays alone (mailboxes
     // are keyed by ray), so the sums are the same for any thread count.
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let threads = crate::trace::host_cores();
     let rows: Vec<u32> = sampled(height, stride).collect();
     // Set when a thread is refused: the plan fails, so the threads already
     // started stop at their next row instead of tracing their share.

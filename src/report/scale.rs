@@ -293,7 +293,7 @@ pub fn measure(
     let Some(base) = runs.first() else {
         return Ok(rows);
     };
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let cores = crate::trace::host_cores();
     for (((&d, t), of_d), eq) in dims.iter().zip(&machines).zip(&runs).zip(&equal_area) {
         let wall = median(of_d.iter().map(|r| r.wall_seconds).collect());
         let virt = median(of_d.iter().map(|r| r.virtual_seconds).collect());

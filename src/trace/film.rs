@@ -35,6 +35,13 @@ pub fn prefault<T: Default + PartialEq>(v: &mut [T]) {
     }
 }
 
+/// The host's cores, as the OS gives them (1 where it cannot say): what
+/// the host's threads are sized by, and what the machine's node threads
+/// share.
+pub fn host_cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
 /// Sets `out[per·i .. per·(i + 1)]` by `f(&input[i], ..)` for every `i`,
 /// over the host's cores where `input` is an image's worth (an image's
 /// conversions after a render, when nothing else runs: a megapixel took
@@ -78,7 +85,7 @@ fn map_parallel_from<T: Sync, U: Send>(
             f(x, o);
         }
     };
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let threads = host_cores();
     if input.len() < from.max(2) || threads < 2 || per == 0 {
         return each(input, out);
     }

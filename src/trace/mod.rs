@@ -15,7 +15,7 @@
 mod film;
 mod optics;
 
-pub use film::{FIXED_ONE, Film, collect_parallel, map_parallel, prefault};
+pub use film::{FIXED_ONE, Film, collect_parallel, host_cores, map_parallel, prefault};
 pub use optics::{Refraction, offset_origin, reflect, refract};
 
 use crate::csg::{Boundary, PrimId};
