@@ -521,6 +521,7 @@ impl Plan {
             if !more[0].is_empty() && !more[1].is_empty() {
                 tries.push([more[0].clone(), Vec::new()]);
             }
+            let was = mapping::predicted_imbalance(&work, &owner, d);
             let (mut taken, mut passing) = (None, None);
             for more in tries {
                 let mut next_hot = hot.clone();
@@ -547,10 +548,7 @@ impl Plan {
                 // back's pieces 2.3 times the crossings and 2.4 times as
                 // even, ran 2,538 and 1,298 virtual seconds where the
                 // front's pieces alone ran 3,332 and 3,507).
-                let (was, now) = (
-                    mapping::predicted_imbalance(&work, &owner, d),
-                    mapping::predicted_imbalance(&next_work, &next_owner, d),
-                );
+                let now = mapping::predicted_imbalance(&next_work, &next_owner, d);
                 let grows = next_moves.len() as f64 / moves.len().max(1) as f64;
                 let scatters = next_moves.len() as f64 > HOT_CROSSINGS * as_built as f64
                     && next_moves.len() as u64 > mapping::prepass_pixels(w, h, n)
@@ -580,7 +578,6 @@ impl Plan {
             let Some((next, now)) = taken.or(passing) else {
                 break;
             };
-            let was = mapping::predicted_imbalance(&work, &owner, d);
             let current = (cells, hot, work, owner, moves);
             (cells, hot, work, owner, moves) = next;
             round += 1;
@@ -1072,7 +1069,7 @@ fn run_pass(
         overhead: topo.message_overhead,
         compute_speed: topo.compute_speed,
     };
-    let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
+    let cores = crate::trace::host_cores();
     let pacing = super::node::Pacing::for_host(n, cores);
     let (mut host, node_links) = channels(d, opts.capacity);
     // The nodes' stopwatch is measured once per process, here rather than
@@ -1454,8 +1451,7 @@ impl Run {
             .filter(|&o| self.all_started[o])
             .map(|o| std::mem::take(&mut self.credit[o]))
             .sum();
-        let takers = self.all_started.iter().filter(|&&s| !s).count();
-        if takers == 0 {
+        if self.all_started.iter().all(|&s| s) {
             return;
         }
         while spare > 0 {
@@ -1565,6 +1561,15 @@ mod tests {
         }
     }
 
+    /// The plan of bundled scene `file` on `2^d` nodes of the iPSC-D5 for
+    /// a `w` by `h` image.
+    fn plan_of(file: &str, d: u32, w: u32, h: u32) -> Plan {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(file);
+        let (scene, _) = crate::scene::load::load_scene_with_warnings(&path).unwrap();
+        let topo = Topology::ipsc_d5().with_overrides(Some(d), None).unwrap();
+        Plan::new(&scene, &topo, &MachineOptions::new(w, h, 1)).unwrap()
+    }
+
     /// A scene of few primitives on many nodes gets the super cells its
     /// balance asks for. Two rules held them back: the BSP's budget of 16
     /// leaves per primitive (`csg_basics.ron` stopped at 58 super cells on
@@ -1580,10 +1585,7 @@ mod tests {
             ("scenes/csg_basics.ron", 6, 160, 120, 2.0),
             ("scenes/csg_basics.ron", 7, 160, 120, 2.0),
         ] {
-            let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(file);
-            let (scene, _) = crate::scene::load::load_scene_with_warnings(&path).unwrap();
-            let topo = Topology::ipsc_d5().with_overrides(Some(d), None).unwrap();
-            let plan = Plan::new(&scene, &topo, &MachineOptions::new(w, h, 1)).unwrap();
+            let plan = plan_of(file, d, w, h);
             let uneven = mapping::predicted_imbalance(&plan.work, &plan.owner, d);
             assert!(
                 uneven < most,
@@ -1604,12 +1606,8 @@ mod tests {
     /// crossings, and are made because they even the loads more.
     #[test]
     fn work_behind_the_eye_is_split_for_the_balance() {
-        let path =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/small/behind_eye.ron");
-        let (scene, _) = crate::scene::load::load_scene_with_warnings(&path).unwrap();
         for (d, most) in [(3, 2.0), (4, 2.0), (5, 3.0)] {
-            let topo = Topology::ipsc_d5().with_overrides(Some(d), None).unwrap();
-            let plan = Plan::new(&scene, &topo, &MachineOptions::new(160, 120, 1)).unwrap();
+            let plan = plan_of("scenes/small/behind_eye.ron", d, 160, 120);
             let behind = plan.cells.region(Region::Back).supers.len();
             let uneven = mapping::predicted_imbalance(&plan.work, &plan.owner, d);
             assert!(
@@ -1626,10 +1624,7 @@ mod tests {
     /// stopped; the second round predicts 2.65.
     #[test]
     fn a_round_less_even_far_from_even_is_built_on() {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/house.ron");
-        let (scene, _) = crate::scene::load::load_scene_with_warnings(&path).unwrap();
-        let topo = Topology::ipsc_d5().with_overrides(Some(7), None).unwrap();
-        let plan = Plan::new(&scene, &topo, &MachineOptions::new(640, 480, 1)).unwrap();
+        let plan = plan_of("scenes/house.ron", 7, 640, 480);
         let uneven = mapping::predicted_imbalance(&plan.work, &plan.owner, 7);
         assert!(
             plan.rebuilds == 2 && uneven < 4.0,

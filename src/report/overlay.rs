@@ -43,7 +43,7 @@ pub fn draw_super_cells(
 ) -> usize {
     let (w, h) = (cam.width as i64, cam.height as i64);
     let front = cs.region(Region::Front);
-    let max = front
+    let most = front
         .partition
         .leaves
         .iter()
@@ -51,8 +51,7 @@ pub fn draw_super_cells(
         .max()
         .unwrap_or(1)
         .max(1);
-    let most = max;
-    let max = max as f64;
+    let max = most as f64;
     // Screen x/z, y/z to pixel coordinates (pixel centres at +0.5).
     let px = |sx: f64| ((sx / cam.half_w + 1.0) * 0.5 * w as f64).clamp(-1.0, w as f64 + 1.0);
     let py = |sy: f64| ((1.0 - sy / cam.half_h) * 0.5 * h as f64).clamp(-1.0, h as f64 + 1.0);
