@@ -183,7 +183,7 @@ impl MachineStats {
 /// encoded at once (a batch being sealed, an envelope being decoded): a
 /// path's frame never takes more than the path decoded
 /// (`codec::tests::a_paths_frame_is_never_larger_than_the_path_decoded`).
-fn path_bound(scene: &Scene) -> u64 {
+fn path_bound(scene: &Scene, forks: u16) -> u64 {
     // A stack's capacity never passes the most rays it holds: a node grows
     // it up to that bound only (`Node::trace`), and a decoded stack has
     // its length. (Grown as `Vec` grows it, doubling, the bound was twice
@@ -192,9 +192,41 @@ fn path_bound(scene: &Scene) -> u64 {
     let capacity = stack_bound(scene);
     let decoded = std::mem::size_of::<Path>() + capacity * std::mem::size_of::<RayJob>();
     // With the shadow rays it may send off alone, each a path without
-    // waiting rays (`node::MAX_FORKS`).
-    let leaves = node::MAX_FORKS as usize * std::mem::size_of::<Path>();
+    // waiting rays (`fork_limit`).
+    let leaves = usize::from(forks) * std::mem::size_of::<Path>();
     (2 * (decoded + leaves)) as u64
+}
+
+/// Paths in flight per node that a fork limit above `node::MAX_FORKS`
+/// must leave (`fork_limit`). The scene of 32 lights below at d = 5 on the
+/// iPSC-D5 ran fastest with a fork per light (a window of 7); 64 forks
+/// (a window of 4) still beat 4 forks (a window of 18), 128 (a window of
+/// 2) did not.
+const FORK_WINDOW: u32 = 4;
+
+/// Shadow rays one sample may send off alone (`node::Node::trace`): one
+/// per light, so that each of a hit's shadow rays that leaves for another
+/// node goes as a leaf of some 100 bytes instead of taking the path, with
+/// every ray waiting on its stack, there and back; at least
+/// `node::MAX_FORKS`. Each fork the limit allows is a leaf the memory plan
+/// counts in every path's bound (`path_bound`), so where one per light
+/// would leave the nodes fewer than `FORK_WINDOW` paths in flight
+/// (`window_with`, the window a path bound leaves), the limit halves
+/// until it does not, down to `node::MAX_FORKS`. A scene of 32 lights
+/// over three primitives at 320x240 on the iPSC-D5 (d = 5; d = 1): with
+/// 4 forks 1,163 MB (192 MB) on the links, 2.48 s (0.50 s) wall and 1,984
+/// (4,805) virtual seconds; with 32, 229 MB (32 MB), 1.45 s (0.36 s) and
+/// 1,636 (4,250).
+fn fork_limit(scene: &Scene, window_with: impl Fn(u64) -> u32) -> u16 {
+    let lights = u16::try_from(scene.lights.len()).unwrap_or(u16::MAX);
+    let mut forks = lights;
+    while forks > node::MAX_FORKS {
+        if window_with(path_bound(scene, forks)) >= FORK_WINDOW {
+            return forks;
+        }
+        forks /= 2;
+    }
+    node::MAX_FORKS
 }
 
 /// The most rays a path's stack holds. A hit spawns at most one shadow ray
@@ -322,6 +354,8 @@ pub struct Plan {
     pub window: u32,
     /// Bound of one path's bytes in a node.
     pub path_bytes: u64,
+    /// Shadow rays a sample may send off alone (`fork_limit`).
+    pub forks: u16,
     pub prepass_seconds: f64,
     /// Super cells the mapping found too heavy for one node, which the
     /// build split (`mapping::hot`), and how many times it built again.
@@ -610,13 +644,12 @@ impl Plan {
         } else {
             own_shares(&owner)
         };
-        let path_bytes = path_bound(scene);
         // Every node may come to hold every path in flight (n windows),
         // and a window's room of finished records no credit covers, not
         // yet handed to the host's link (`local_credits`; a finished
         // record is far smaller than a path's bound).
-        let per_path = (n as u64 + 1) * path_bytes;
-        let window_for = |shares: &[(CellStructure, Scene)]| {
+        let per_path_of = |path_bytes: u64| (n as u64 + 1) * path_bytes;
+        let window_of = |shares: &[(CellStructure, Scene)], per_path: u64| {
             let most = shares
                 .iter()
                 .map(|(c, s)| node::share_bytes(c, s))
@@ -625,6 +658,10 @@ impl Plan {
             let room = topo.node_memory.saturating_sub(most);
             (room / per_path).min(MAX_WINDOW as u64) as u32
         };
+        let forks = fork_limit(scene, |bytes| window_of(&shares, per_path_of(bytes)));
+        let path_bytes = path_bound(scene, forks);
+        let per_path = per_path_of(path_bytes);
+        let window_for = |shares: &[(CellStructure, Scene)]| window_of(shares, per_path);
         let mut window = window_for(&shares);
         let mut copies = None;
         if whole && n > 1 {
@@ -700,6 +737,7 @@ impl Plan {
             share_bytes,
             window,
             path_bytes,
+            forks,
             prepass_seconds,
             split_super_cells: hot.iter().map(Vec::len).sum(),
             rebuilds: round,
@@ -1105,6 +1143,7 @@ fn run_pass(
                 first_sample: pass.first_sample,
                 pixels: pixels.clone(),
                 window: plan.window,
+                forks: plan.forks,
                 local_credits: plan.local_credits(),
                 budget: topo.node_memory,
                 link: model,
@@ -1696,6 +1735,29 @@ mod tests {
         );
         parse_scene_str(&text, SceneSyntax::Ron, std::path::Path::new("t.ron"))
             .unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    /// One leaf per light where the nodes keep `FORK_WINDOW` paths in
+    /// flight with them; fewer, by halves, where not; never fewer than
+    /// `node::MAX_FORKS`.
+    #[test]
+    fn a_sample_may_send_a_shadow_ray_per_light_alone_where_memory_allows() {
+        let matte = "\"m\": (color: (1, 1, 1))";
+        let many = scene(matte, 40, 5);
+        assert_eq!(fork_limit(&many, |_| FORK_WINDOW), 40);
+        // Room for 4 paths of the bound with 20 forks (halved from 40),
+        // not with 40.
+        let room = 4 * path_bound(&many, 20);
+        assert_eq!(fork_limit(&many, |b| (room / b) as u32), 20);
+        assert_eq!(fork_limit(&many, |_| 0), node::MAX_FORKS);
+        let few = scene(matte, 2, 5);
+        assert_eq!(fork_limit(&few, |_| u32::MAX), node::MAX_FORKS);
+        // A plan takes it, and counts its leaves in a path's bound.
+        let file = "scenes/small/many_lights.ron";
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(file);
+        let (lit, _) = crate::scene::load::load_scene_with_warnings(&path).unwrap();
+        let plan = plan_of(file, 3, 64, 48);
+        assert_eq!((plan.forks, plan.path_bytes), (16, path_bound(&lit, 16)));
     }
 
     #[test]

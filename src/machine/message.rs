@@ -102,6 +102,9 @@ pub struct Share {
     /// Primary paths the node may have unfinished at once (flow control:
     /// with every node's window, the paths in flight fit any node).
     pub window: u32,
+    /// Shadow rays a sample may send off alone (`host::fork_limit`): the
+    /// leaves the plan counts in each path's bound.
+    pub forks: u16,
     /// Finished records no credit covers (of samples credited on this
     /// node, `node::Node::credit_locally`, and of background samples) that
     /// may wait for the host's link at once: as many as fit the room the
@@ -162,7 +165,7 @@ pub struct Path {
     pub active: Active,
     /// Spawned rays not yet traced.
     pub stack: Vec<RayJob>,
-    /// Shadow rays sent off alone as leaves (`node::MAX_FORKS`).
+    /// Shadow rays sent off alone as leaves (`Share::forks`).
     pub forks: u16,
     /// A leaf: one shadow ray of the sample, gone on alone.
     pub leaf: bool,

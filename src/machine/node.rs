@@ -58,8 +58,10 @@ const ENVELOPE_ROOM: usize = 8 << 10;
 const SPARE_ENVELOPES: usize = 8;
 /// Finished samples per message to the host.
 const DONE_BATCH: usize = 256;
-/// Shadow rays a path may send off alone (`Node::trace`): a bound on the
-/// pieces of one sample in flight, which the host's memory plan counts.
+/// Shadow rays a path may send off alone (`Node::trace`) at least: a bound
+/// on the pieces of one sample in flight, which the host's memory plan
+/// counts. The plan allows one per light where memory leaves room
+/// (`host::fork_limit`, `Share::forks`).
 pub const MAX_FORKS: u16 = 4;
 /// Message start-ups a batch may wait for more paths (`batch_wait`).
 const BATCH_WAIT: f64 = 2.0;
@@ -1066,7 +1068,7 @@ impl<'a> Node<'a> {
                 Walk::Remote(p) => {
                     a.at = Some(p);
                     let dest = self.share.owner[p.region as usize][p.super_cell as usize];
-                    if !(shadow && !path.stack.is_empty() && path.forks < MAX_FORKS) {
+                    if !(shadow && !path.stack.is_empty() && path.forks < self.share.forks) {
                         // Its bytes move, held, into the batch.
                         return self.route(Carried::Path(Box::new(Routed {
                             dest,
