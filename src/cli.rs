@@ -822,21 +822,46 @@ fn run_render(a: RenderArgs) -> Result<()> {
 /// bundled scenes at the iPSC-D5's 32 nodes, holding everything on every
 /// node was 1.7-4.6 times faster in wall time, 1.5-4.9 in virtual time
 /// (README, "The hypercube machine").
+///
+/// Said too where no path travelled but the work sat on few nodes (a busy
+/// imbalance of `WHOLE_HINT_UNEVEN` or more) on a render of a second or
+/// more (in shorter ones the imbalance is mostly the nodes' fixed costs:
+/// `scenes/small/sphere.ron` at 320x240 on 32 nodes, 2.3-3.7 with the
+/// default placement, 9-11 with the whole scene): a scene of three primitives
+/// and 300 lights kept its work on one node of 32 (its splits would have
+/// sent rays between nodes at every turn), 67,400 virtual seconds and
+/// 6.1 s of wall time against 5,700 and 5.6 s with the whole scene on
+/// every node, where the pre-pass deals the pixels out.
 fn whole_scene_hint(ms: &MachineStats, node_memory: u64) -> Option<String> {
     let mib = |b: u64| b as f64 / 1048576.0;
-    (ms.replicas == Some(machine::Replicas::Auto)
-        && ms.hops > 0
-        && ms.replicated_bytes <= node_memory / 2)
-        .then(|| {
-            format!(
-                "every node could hold this whole scene ({:.2} MiB of {:.2} MiB); \
-                 --replicas whole renders it with no paths between nodes \
-                 (the scene copied to every node, not distributed as in the paper)",
-                mib(ms.replicated_bytes),
-                mib(node_memory)
-            )
-        })
+    let uneven =
+        ms.per_node.len() > 1 && ms.imbalance >= WHOLE_HINT_UNEVEN && ms.wall_seconds >= 1.0;
+    if ms.replicas != Some(machine::Replicas::Auto)
+        || !(ms.hops > 0 || uneven)
+        || ms.replicated_bytes > node_memory / 2
+    {
+        return None;
+    }
+    let why = if ms.hops > 0 {
+        "renders it with no paths between nodes".to_string()
+    } else {
+        format!(
+            "deals out its work, which sat on few nodes here (busy imbalance {:.2})",
+            ms.imbalance
+        )
+    };
+    Some(format!(
+        "every node could hold this whole scene ({:.2} MiB of {:.2} MiB); \
+         --replicas whole {why} \
+         (the scene copied to every node, not distributed as in the paper)",
+        mib(ms.replicated_bytes),
+        mib(node_memory)
+    ))
 }
+
+/// The busy imbalance from which a render that sent no path between nodes
+/// gets `whole_scene_hint`.
+const WHOLE_HINT_UNEVEN: f64 = 2.0;
 
 /// Where the default machine's node threads outnumbered the host's cores
 /// on a render of a second or more, the dimension that gives each core one
@@ -1350,6 +1375,48 @@ mod tests {
         assert_eq!(cores_hint(32, 2, 0.5), None, "a quick render needs no hint");
         assert_eq!(cores_hint(2, 2, 2.8), None, "one node per core already");
         assert_eq!(cores_hint(32, 64, 2.8), None);
+    }
+
+    /// The whole-scene hint: where paths travelled between nodes that could
+    /// each hold the scene twice over, and where none did but the work of
+    /// a render of a second or more sat on few nodes; not for a placement
+    /// the user chose, one node, a scene over half a node, or a short or
+    /// even run without paths.
+    #[test]
+    fn the_whole_scene_hint_names_why() {
+        use crate::machine::message::NodeReport;
+        use crate::machine::{MachineStats, Replicas};
+        let mib = 1u64 << 20;
+        let ms = |hops: u64, imbalance: f64, wall_seconds: f64| MachineStats {
+            replicas: Some(Replicas::Auto),
+            replicated_bytes: mib,
+            per_node: vec![NodeReport::default(); 32],
+            hops,
+            imbalance,
+            wall_seconds,
+            ..MachineStats::default()
+        };
+        let hint = |m: &MachineStats| super::whole_scene_hint(m, 4 * mib);
+        let crossed = hint(&ms(10, 1.1, 0.1)).expect("a hint");
+        assert!(crossed.contains("with no paths between nodes"), "{crossed}");
+        let gathered = hint(&ms(0, 32.0, 6.1)).expect("a hint");
+        assert!(
+            gathered.contains("deals out its work") && gathered.contains("imbalance 32.00"),
+            "{gathered}"
+        );
+        assert_eq!(hint(&ms(0, 32.0, 0.5)), None, "a short run");
+        assert_eq!(hint(&ms(0, 1.5, 6.1)), None, "an even run");
+        let mut one = ms(0, 32.0, 6.1);
+        one.per_node.truncate(1);
+        assert_eq!(hint(&one), None, "one node");
+        let mut chosen = ms(10, 1.1, 0.1);
+        chosen.replicas = Some(Replicas::None);
+        assert_eq!(hint(&chosen), None, "a placement the user chose");
+        assert_eq!(
+            super::whole_scene_hint(&ms(10, 1.1, 0.1), mib),
+            None,
+            "too large"
+        );
     }
 
     /// A run that had less than half the cores it could use says so; a
