@@ -1737,6 +1737,38 @@ mod tests {
             .unwrap_or_else(|e| panic!("{e}"))
     }
 
+    /// With the whole scene on every node, pixels are dealt out by their
+    /// work, and a background pixel weighs its sample's own cost
+    /// (`mapping::SAMPLE_UNITS`): the empty super cells of a scene that is
+    /// mostly background spread over the nodes instead of all going to
+    /// one (all 50-odd of `scenes/small/sphere.ron`'s at 320x240 went to
+    /// one node of 32, busy 16 times the others).
+    #[test]
+    fn background_pixel_areas_are_dealt_out_with_the_whole_scene() {
+        let file = "scenes/small/sphere.ron";
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(file);
+        let (scene, _) = crate::scene::load::load_scene_with_warnings(&path).unwrap();
+        let topo = Topology::ipsc_d5();
+        let mut o = MachineOptions::new(320, 240, 1);
+        o.replicas = Replicas::Whole;
+        let plan = Plan::new(&scene, &topo, &o).unwrap();
+        let front = plan.cells.region(Region::Front);
+        let mut empty_on = vec![0usize; 32];
+        for s in 0..front.supers.len() as u32 {
+            if front.super_cell_is_empty(s) {
+                empty_on[plan.owner[Region::Front as usize][s as usize] as usize] += 1;
+            }
+        }
+        let (most, all) = (
+            *empty_on.iter().max().unwrap(),
+            empty_on.iter().sum::<usize>(),
+        );
+        assert!(
+            all >= 32 && most * 4 <= all,
+            "empty super cells per node {empty_on:?}"
+        );
+    }
+
     /// One leaf per light where the nodes keep `FORK_WINDOW` paths in
     /// flight with them; fewer, by halves, where not; never fewer than
     /// `node::MAX_FORKS`.

@@ -213,6 +213,18 @@ pub fn map_whole(
     Ok((work, owner, Vec::new()))
 }
 
+/// The work a sample costs its node beyond its rays' walks, in the
+/// pre-pass's units (`CellTracer::recorded_total`; some 22 ns each on this
+/// host, session 46's regression): starting it, and its finished record
+/// for the host, about 100 ns. Booked with the whole scene on every node
+/// (`Walked::ByPixel`), where pixels are dealt out by their work alone:
+/// without it a background pixel area weighed nothing, and every empty
+/// super cell went to one node. `scenes/small/sphere.ron` at 320x240 on
+/// 32 nodes, whose image is mostly background: busy imbalance 9-11 and
+/// 70-110 virtual seconds before, against 2.3-3.7 and 17-27 with the
+/// default placement.
+const SAMPLE_UNITS: u64 = 4;
+
 /// Super cells dealt to `2^d` nodes by their work alone, heaviest first,
 /// each to the node least loaded so far (Graham's LPT rule; ties to the
 /// lower super cell and node). Back super cells, where no pixel is, hold
@@ -411,7 +423,7 @@ fn prepass(
                 }
                 if let (Walked::ByPixel, Some(ray)) = (walk, pixel) {
                     let s = cs.primary_super_cell(&ray) as usize;
-                    by_pixel[s] += tracer.recorded_total() - before;
+                    by_pixel[s] += tracer.recorded_total() - before + SAMPLE_UNITS;
                 }
             }
         }
