@@ -959,6 +959,7 @@ pub fn machine_json(topo: &Topology, ms: &MachineStats) -> Vec<(&'static str, se
                 "hops": n.hops,
                 "paths_forwarded": n.paths_forwarded,
                 "leaves_sent": n.leaves_sent,
+                "credits_from_host": n.credits_from_host,
                 "max_stack_rays": n.max_stack_rays,
                 "intersection_tests": n.intersection_tests,
                 "mailbox_hits": n.mailbox_hits,

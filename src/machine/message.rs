@@ -238,6 +238,7 @@ impl NodeReport {
         self.hops += o.hops;
         self.paths_forwarded += o.paths_forwarded;
         self.leaves_sent += o.leaves_sent;
+        self.credits_from_host += o.credits_from_host;
         self.max_stack_rays = self.max_stack_rays.max(o.max_stack_rays);
         self.intersection_tests += o.intersection_tests;
         self.mailbox_hits += o.mailbox_hits;
@@ -287,6 +288,9 @@ pub struct NodeReport {
     pub paths_forwarded: u64,
     /// Shadow rays sent off alone as leaves (`Part::Leaf`).
     pub leaves_sent: u64,
+    /// Credits the host returned for finished samples (the others the
+    /// node took back itself, `Node::credit_locally`).
+    pub credits_from_host: u64,
     /// The most rays any path's stack held here (`host::stack_bound`
     /// bounds it).
     pub max_stack_rays: u64,
