@@ -516,116 +516,195 @@ impl Plan {
             ..opts.cells
         };
         let (w, h) = (opts.width, opts.height);
-        let mut cells = CellStructure::build(scene, w, h, cell_opts)?;
+        let cells = CellStructure::build(scene, w, h, cell_opts)?;
         let t_pre = Instant::now();
         // A super cell is never split over nodes: where the mapping's
         // estimate finds one much heavier than a node's share, the build
         // is made again with it split (`mapping::hot`), at most
         // `HOT_ROUNDS` times (work within a super cell need not be even,
         // so a piece may still be heavy).
-        let mut hot: [Vec<crate::cells::Hot>; 2] = Default::default();
+        let hot: [Vec<crate::cells::Hot>; 2] = Default::default();
         let cam = crate::trace::CameraFrame::new(scene, w, h);
-        let mut round = 0;
         // Nodes that hold everything are balanced on their pixels' work.
         let whole = opts.replicas == Replicas::Whole;
         let map = |cells: &CellStructure| match opts.mapping {
             Mapping::Balanced if whole => mapping::map_whole(cells, scene, w, h, d),
             _ => mapping::map(cells, scene, w, h, opts.mapping, d),
         };
-        let (mut work, mut owner, mut moves) = map(&cells)?;
+        let (work, owner, moves) = map(&cells)?;
         let as_built = moves.len();
-        // A plan more even than the one the rounds go on from, with its
-        // rounds and predicted imbalance (`HOT_PASS`).
-        let mut best = None;
-        while opts.mapping == Mapping::Balanced
-            && sub == Subdivision::Balanced
-            && round < HOT_ROUNDS
-            && mapping::predicted_imbalance(&work, &owner, d) > HOT_EVEN
-        {
-            let more = mapping::hot(&cells, &work, d, (&cam, w, h), whole);
-            if more.iter().all(Vec::is_empty) {
-                break;
-            }
-            // Behind the eye, rays converge on few points (a light behind
-            // the camera draws every shadow ray), so pieces there may send
-            // rays between nodes at every turn where the front's would
-            // not: a round refused with them is tried with the front's
-            // alone.
-            let mut tries = vec![more.clone()];
-            if !more[0].is_empty() && !more[1].is_empty() {
-                tries.push([more[0].clone(), Vec::new()]);
-            }
-            let was = mapping::predicted_imbalance(&work, &owner, d);
-            let (mut taken, mut passing) = (None, None);
-            for more in tries {
-                let mut next_hot = hot.clone();
-                for (all, m) in next_hot.iter_mut().zip(more) {
-                    all.extend(m);
-                }
-                let next = CellStructure::build_with_hot(
-                    scene,
-                    w,
-                    h,
-                    cell_opts,
-                    &[&next_hot[0], &next_hot[1]],
-                )?;
-                let (next_work, next_owner, next_moves) = map(&next)?;
-                // Splits trade messages for balance; past this, they cost
-                // more than they even out (`HOT_CROSSINGS`), unless they
-                // stay within one crossing per pre-pass pixel (a structure
-                // built with all its work on a few nodes crosses little
-                // for that very reason: `scenes/small/sphere.ron` on 32
-                // nodes, none, and doubling its few crossings is what its
-                // balance takes), or the round evens the loads by a larger
-                // factor than it multiplies the crossings (a light behind
-                // the camera: `behind_eye.ron` on 32 and 64 nodes, its
-                // back's pieces 2.3 times the crossings and 2.4 times as
-                // even, ran 2,538 and 1,298 virtual seconds where the
-                // front's pieces alone ran 3,332 and 3,507).
-                let now = mapping::predicted_imbalance(&next_work, &next_owner, d);
-                let grows = next_moves.len() as f64 / moves.len().max(1) as f64;
-                let scatters = next_moves.len() as f64 > HOT_CROSSINGS * as_built as f64
-                    && next_moves.len() as u64 > mapping::prepass_pixels(w, h, n)
-                    && was / now < grows;
-                // Splits are for the balance: a round that does not even
-                // the predicted loads only adds cells and crossings. (The
-                // sphereflake's heaviest super cell holds just over
-                // `HOT_LOAD` of a node's work since shadow rays stop at
-                // their first blocker: split, it predicted 1.135 instead
-                // of 1.104, with 2.25 times the single node's structure on
-                // 32 nodes.)
-                let evens = now < was;
-                // Far from even, a round that is not may still be built
-                // on: the next one starts from its finer pieces
-                // (`HOT_PASS`), and the most even plan seen is kept.
-                // A try that evens the loads goes before one that passes.
-                let passes = !evens && was > HOT_PASS && round + 1 < HOT_ROUNDS;
-                let tried = ((next, next_hot, next_work, next_owner, next_moves), now);
-                if !scatters && evens {
-                    taken = Some(tried);
+        // The rounds of hot splits from a plan as built, with the edges'
+        // tries (below) or without: the plan they end with, and how many
+        // rounds built it.
+        type Built = (
+            CellStructure,
+            [Vec<crate::cells::Hot>; 2],
+            [Vec<f64>; 2],
+            [Vec<u16>; 2],
+            Vec<crate::cells::Move>,
+        );
+        let rounds = |to_edges_too: bool, built: Built| -> Result<(Built, usize)> {
+            let (mut cells, mut hot, mut work, mut owner, mut moves) = built;
+            let mut round = 0;
+            // A plan more even than the one the rounds go on from, with its
+            // rounds and predicted imbalance (`HOT_PASS`).
+            let mut best = None;
+            while opts.mapping == Mapping::Balanced
+                && sub == Subdivision::Balanced
+                && round < HOT_ROUNDS
+                && mapping::predicted_imbalance(&work, &owner, d) > HOT_EVEN
+            {
+                let more = mapping::hot(&cells, &work, d, (&cam, w, h), whole);
+                // Unbounded super cells cut out to the screen's edges as well
+                // (`mapping::hot`'s `to_edges`, which nodes holding everything
+                // always take): a ground seen in front of the scene lies in
+                // super cells past every finite cut, which the finite span
+                // leaves whole. Tried last in the rounds that allow it
+                // (below), and taken where it evens the loads more than the
+                // try taken before it: the SPD's rings on 32 nodes (its
+                // ground 1.9 nodes' loads, in two super cells), predicted
+                // 1.889 to 1.039 with fewer crossings, ran 197-204 virtual
+                // seconds against 292-386.
+                let edges = (to_edges_too && !whole)
+                    .then(|| mapping::hot(&cells, &work, d, (&cam, w, h), true))
+                    .filter(|e| e[0] != more[0]);
+                if more.iter().all(Vec::is_empty) && edges.is_none() {
                     break;
                 }
-                if !scatters && passes && passing.is_none() {
-                    passing = Some(tried);
+                // Behind the eye, rays converge on few points (a light behind
+                // the camera draws every shadow ray), so pieces there may send
+                // rays between nodes at every turn where the front's would
+                // not: a round refused with them is tried with the front's
+                // alone.
+                let mut tries = Vec::new();
+                if more.iter().any(|m| !m.is_empty()) {
+                    tries.push((more.clone(), false));
+                    if !more[0].is_empty() && !more[1].is_empty() {
+                        tries.push(([more[0].clone(), Vec::new()], false));
+                    }
+                }
+                tries.extend(edges.map(|e| (e, true)));
+                let was = mapping::predicted_imbalance(&work, &owner, d);
+                let (mut taken, mut passing) = (None, None);
+                for (more, to_edges) in tries {
+                    // The first try that evens the loads is taken; only the
+                    // edges' may still take its place.
+                    if taken.is_some() && !to_edges {
+                        continue;
+                    }
+                    let mut next_hot = hot.clone();
+                    for (all, m) in next_hot.iter_mut().zip(more) {
+                        all.extend(m);
+                    }
+                    let next = CellStructure::build_with_hot(
+                        scene,
+                        w,
+                        h,
+                        cell_opts,
+                        &[&next_hot[0], &next_hot[1]],
+                    )?;
+                    let (next_work, next_owner, next_moves) = map(&next)?;
+                    // Splits trade messages for balance; past this, they cost
+                    // more than they even out (`HOT_CROSSINGS`), unless they
+                    // stay within one crossing per pre-pass pixel (a structure
+                    // built with all its work on a few nodes crosses little
+                    // for that very reason: `scenes/small/sphere.ron` on 32
+                    // nodes, none, and doubling its few crossings is what its
+                    // balance takes), or the round evens the loads by a larger
+                    // factor than it multiplies the crossings (a light behind
+                    // the camera: `behind_eye.ron` on 32 and 64 nodes, its
+                    // back's pieces 2.3 times the crossings and 2.4 times as
+                    // even, ran 2,538 and 1,298 virtual seconds where the
+                    // front's pieces alone ran 3,332 and 3,507).
+                    let now = mapping::predicted_imbalance(&next_work, &next_owner, d);
+                    let grows = next_moves.len() as f64 / moves.len().max(1) as f64;
+                    let scatters = next_moves.len() as f64 > HOT_CROSSINGS * as_built as f64
+                        && next_moves.len() as u64 > mapping::prepass_pixels(w, h, n)
+                        && was / now < grows;
+                    // Splits are for the balance: a round that does not even
+                    // the predicted loads only adds cells and crossings. (The
+                    // sphereflake's heaviest super cell holds just over
+                    // `HOT_LOAD` of a node's work since shadow rays stop at
+                    // their first blocker: split, it predicted 1.135 instead
+                    // of 1.104, with 2.25 times the single node's structure on
+                    // 32 nodes.)
+                    let evens = now < was;
+                    // Far from even, a round that is not may still be built
+                    // on: the next one starts from its finer pieces
+                    // (`HOT_PASS`), and the most even plan seen is kept.
+                    // A try that evens the loads goes before one that passes.
+                    let passes = !evens && was > HOT_PASS && round + 1 < HOT_ROUNDS;
+                    let tried = ((next, next_hot, next_work, next_owner, next_moves), now);
+                    if !scatters && evens {
+                        if taken.as_ref().is_none_or(|(_, t)| now < *t) {
+                            taken = Some(tried);
+                        }
+                        continue;
+                    }
+                    if !scatters && passes && passing.is_none() {
+                        passing = Some(tried);
+                    }
+                }
+                let Some((next, now)) = taken.or(passing) else {
+                    break;
+                };
+                let current = (cells, hot, work, owner, moves);
+                (cells, hot, work, owner, moves) = next;
+                round += 1;
+                // The most even plan so far, where it is not the one built on.
+                match &best {
+                    Some((_, _, most)) if now < *most => best = None,
+                    Some(_) => {}
+                    None if now >= was => best = Some((current, round - 1, was)),
+                    None => {}
                 }
             }
-            let Some((next, now)) = taken.or(passing) else {
-                break;
-            };
-            let current = (cells, hot, work, owner, moves);
-            (cells, hot, work, owner, moves) = next;
-            round += 1;
-            // The most even plan so far, where it is not the one built on.
-            match &best {
-                Some((_, _, most)) if now < *most => best = None,
-                Some(_) => {}
-                None if now >= was => best = Some((current, round - 1, was)),
-                None => {}
+            if let Some((kept, rounds, _)) = best {
+                (cells, hot, work, owner, moves) = kept;
+                round = rounds;
             }
-        }
-        if let Some((kept, rounds, _)) = best {
-            (cells, hot, work, owner, moves) = kept;
-            round = rounds;
+            Ok(((cells, hot, work, owner, moves), round))
+        };
+        // A round takes the try that evens the loads most, but a round
+        // more even is not always the start of a plan more even
+        // (`scenes/small/mirror.ron` on 32 nodes: the edges' first round
+        // 1.373 against 1.390, its last 1.358 against 1.256). So where the
+        // edges change the first round's pieces, the rounds are made both
+        // ways, and the edges' plan kept only if it is more even with no
+        // more crossings: the pieces of a floor cut to the edges send the
+        // rays that leave it across, and plans predicted more even but
+        // crossing more ran slower (on 64 and 128 nodes the jagged ball
+        // 608-610 and 559-638 virtual seconds against 455-475 and 520-522,
+        // predicted 1.105 and 1.174 against 1.121 and 1.365 with 4% and 2%
+        // more crossings; `behind_eye.ron` at 320x240 on 32 and 64 nodes
+        // 472-478 and 430-476 against 333-338 and 326-340, with 16% and
+        // 25% more). The rings, with 15% and 10% fewer, took theirs.
+        let edges_differ = !whole
+            && opts.mapping == Mapping::Balanced
+            && sub == Subdivision::Balanced
+            && mapping::predicted_imbalance(&work, &owner, d) > HOT_EVEN
+            && mapping::hot(&cells, &work, d, (&cam, w, h), true)[0]
+                != mapping::hot(&cells, &work, d, (&cam, w, h), false)[0];
+        let other_start = edges_differ.then(|| {
+            (
+                cells.clone(),
+                hot.clone(),
+                work.clone(),
+                owner.clone(),
+                moves.clone(),
+            )
+        });
+        let ((mut cells, hot, mut work, mut owner, mut moves), mut round) =
+            rounds(false, (cells, hot, work, owner, moves))?;
+        if let Some(start) = other_start {
+            let (edged, edged_rounds) = rounds(true, start)?;
+            if mapping::predicted_imbalance(&edged.2, &edged.3, d)
+                < mapping::predicted_imbalance(&work, &owner, d)
+                && edged.4.len() <= moves.len()
+            {
+                (cells, _, work, owner, moves) = edged;
+                round = edged_rounds;
+            }
         }
         let hulls = cells.cell_hulls();
         // Each node's share of the super cells it owns, made over the
@@ -1735,6 +1814,28 @@ mod tests {
         );
         parse_scene_str(&text, SceneSyntax::Ron, std::path::Path::new("t.ron"))
             .unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    /// A ground seen in front of the scene, in unbounded super cells past
+    /// every finite cut, is split out to the screen's edges where that
+    /// evens the loads with no more crossings (`Plan::new`, `rounds`): the
+    /// SPD's rings on 32 nodes at 128x128 predicted 1.573 with the ground
+    /// in two pieces, 1.066 so split.
+    #[test]
+    fn a_ground_past_every_cut_is_split_out_to_the_edges() {
+        let (scene, _) = crate::scene::load::compile_model(
+            &crate::r#gen::rings::rings(7),
+            std::path::Path::new("rings"),
+        )
+        .unwrap();
+        let plan = Plan::new(
+            &scene,
+            &Topology::ipsc_d5(),
+            &MachineOptions::new(128, 128, 1),
+        )
+        .unwrap();
+        let uneven = mapping::predicted_imbalance(&plan.work, &plan.owner, 5);
+        assert!(uneven < 1.25, "predicted imbalance {uneven}");
     }
 
     /// With the whole scene on every node, pixels are dealt out by their
