@@ -670,6 +670,9 @@ pub struct CellTracer<'a> {
     local_cache: [(u32, Option<PrimId>); LOCAL_CACHE],
     /// The scene's lights by x, for `light_at_end`.
     lights: LightsByX,
+    /// The light of the current job's shadow rays, if told
+    /// (`Tracer::toward`): `light_at_end` need not search for it.
+    toward: Option<u16>,
 }
 
 /// The scene's lights sorted by x, so that the light a shadow ray ends
@@ -771,6 +774,7 @@ impl<'a> CellTracer<'a> {
             leaving_here: None,
             local_cache: [(u32::MAX, None); LOCAL_CACHE],
             lights: LightsByX::new(scene),
+            toward: None,
         }
     }
 
@@ -1310,6 +1314,11 @@ impl CellTracer<'_> {
     /// tolerance of the end's are looked at: a light farther off is
     /// farther than its own tolerance, and so are all lights if it is the
     /// nearest, so either way it changes nothing.
+    ///
+    /// A ray whose light the tracer was told (`toward`) ends at that one
+    /// if within its tolerance (where lights coincide, the first of equals
+    /// would have the same facts, `ShadowFacts`, by their position: only
+    /// the shadow cache's entry differs, which changes no answer).
     fn light_at_end(&self, ray: &Ray, t_max: f64) -> Option<(usize, f64)> {
         if !t_max.is_finite() {
             return None;
@@ -1318,7 +1327,14 @@ impl CellTracer<'_> {
         let from = ray.origin.abs().max_element();
         let lights = &self.scene.lights;
         let d2 = |i: usize| (lights[i].position - end).length_squared();
-        let (i, d2) = if self.lights.order.is_empty() {
+        let told = self
+            .toward
+            .map(usize::from)
+            .filter(|&i| i < lights.len())
+            .map(|i| (i, d2(i)));
+        let (i, d2) = if let Some(told) = told {
+            told
+        } else if self.lights.order.is_empty() {
             (0..lights.len())
                 .map(|i| (i, d2(i)))
                 .min_by(|a, b| a.1.total_cmp(&b.1))?
@@ -1887,6 +1903,10 @@ impl Tracer for CellTracer<'_> {
         self.counters
     }
 
+    fn toward(&mut self, light: Option<u16>) {
+        self.toward = light;
+    }
+
     fn leaving(&mut self, prim: Option<PrimId>) {
         // A node asks again for every walk of a path's ray (a shadow ray
         // past each surface it crosses): the share's lookup once.
@@ -1971,5 +1991,39 @@ mod tests {
             found += usize::from(want.is_some());
         }
         assert!(found > 6_000, "{found} rays end at a light");
+    }
+
+    /// Told a shadow ray's light (`Tracer::toward`), the walk takes that
+    /// light where the ray ends at it within its tolerance, the one of
+    /// coincident lights included, and no light where it does not.
+    #[test]
+    fn a_shadow_ray_told_its_light_ends_there() {
+        let scene = parse_scene_str(
+            "(camera: (eye: (0, -6, 0.5), look_at: (0, 0, 0), fov_y: 40, width: 16, height: 12), \
+             lights: [(position: (2, 0, 3)), (position: (2, 0, 3)), (position: (-2, 0, 3))], \
+             objects: [Sphere(center: (0, 0, 0), radius: 1)])",
+            SceneSyntax::Ron,
+            "lights.ron".as_ref(),
+        )
+        .unwrap();
+        let cs = CellStructure::build(&scene, 16, 12, Default::default()).unwrap();
+        let mut tracer = CellTracer::new(&cs, &scene);
+        let origin = Vec3::new(0.1, -1.5, 0.2);
+        let to = |i: usize| Ray::new(origin, scene.lights[i].position - origin);
+        let tol = |i: usize| {
+            1e-9 * (scene.lights[i].position.abs().max_element() + origin.abs().max_element())
+        };
+        // Not told: the first of equals, as the search finds it.
+        assert_eq!(tracer.light_at_end(&to(1), 1.0), Some((0, tol(0))));
+        for i in 0..3 {
+            tracer.toward(Some(i as u16));
+            assert_eq!(tracer.light_at_end(&to(i), 1.0), Some((i, tol(i))));
+        }
+        // Told a light the ray does not end at.
+        tracer.toward(Some(2));
+        assert_eq!(tracer.light_at_end(&to(0), 1.0), None);
+        // Told a light past the scene's: searched.
+        tracer.toward(Some(7));
+        assert_eq!(tracer.light_at_end(&to(2), 1.0), Some((2, tol(2))));
     }
 }

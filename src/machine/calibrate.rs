@@ -235,6 +235,7 @@ fn ray_job(i: usize) -> RayJob {
         weight: [0.5, 0.25, 0.125],
         t_max: f64::INFINITY,
         leaving: Some(PrimId(i as u32)),
+        light: None,
     }
 }
 

@@ -385,12 +385,20 @@ fn pack_job(j: &RayJob, pixel: u64, ctx: &PathContext) -> WireJob {
         return WireJob::Whole(*j);
     }
     let origin = j.ray.origin.to_array();
+    // The light by the job's own index where it has one (a search over
+    // the lights per shadow ray otherwise), checked all the same.
+    let toward = |i: usize| {
+        ctx.lights
+            .get(i)
+            .is_some_and(|l| same(l.position - j.ray.origin, j.ray.dir))
+    };
     if j.kind == RayKind::Shadow
         && j.t_max.to_bits() == 1f64.to_bits()
-        && let Some(i) = ctx
-            .lights
-            .iter()
-            .position(|l| same(l.position - j.ray.origin, j.ray.dir))
+        && let Some(i) = j
+            .light
+            .map(usize::from)
+            .filter(|&i| toward(i))
+            .or_else(|| (0..ctx.lights.len()).find(|&i| toward(i)))
     {
         return WireJob::Shadow {
             light: i as u32,
@@ -437,6 +445,7 @@ fn unpack_job(w: WireJob, pixel: u32, ctx: &PathContext) -> Result<RayJob, Strin
                 weight,
                 t_max: 1.0,
                 leaving,
+                light: u16::try_from(light).ok(),
             }
         }
         WireJob::Ray(r) => RayJob {
@@ -449,6 +458,7 @@ fn unpack_job(w: WireJob, pixel: u32, ctx: &PathContext) -> Result<RayJob, Strin
             weight: r.weight,
             t_max: r.t_max.unwrap_or(f64::INFINITY),
             leaving: r.leaving,
+            light: None,
         },
         WireJob::Whole(j) => j,
     })
@@ -1380,6 +1390,21 @@ mod tests {
         (scene, cells)
     }
 
+    /// The light the shader names on a shadow ray from `o` along `dir`
+    /// (`RayJob::light`): the one it ends at exactly.
+    fn light_from(
+        scene: &crate::scene::Scene,
+        kind: RayKind,
+        o: Vec3,
+        dir: Vec3,
+        t_max: f64,
+    ) -> Option<u16> {
+        (kind == RayKind::Shadow && t_max == 1.0)
+            .then(|| scene.lights.iter().position(|l| l.position - o == dir))
+            .flatten()
+            .map(|i| i as u16)
+    }
+
     #[test]
     fn paths_unpack_exactly_as_packed_and_smaller() {
         let (scene, cells) = ball_scene();
@@ -1390,6 +1415,7 @@ mod tests {
         };
         let (sample, pixel) = (4 * 37 + 3, 37);
         let o = Vec3::new(0.25, -1.0 / 3.0, 1e-300);
+        let light_of = |kind, dir, t_max| light_from(&scene, kind, o, dir, t_max);
         let job = |kind, dir: Vec3, pixel, t_max| RayJob {
             ray: Ray::new(o, dir),
             kind,
@@ -1399,6 +1425,7 @@ mod tests {
             t_max,
             // None, and a whole-scene index past what one byte holds.
             leaving: (t_max == 1.0).then_some(PrimId(70_000)),
+            light: light_of(kind, dir, t_max),
         };
         let toward = |i: usize| scene.lights[i].position - o;
         let back = cells.region(Region::Back);
@@ -1588,6 +1615,7 @@ mod tests {
             weight: [0.25, 1.0, 0.5],
             t_max,
             leaving,
+            light: light_from(&scene, kind, o, dir, t_max),
         };
         let mut paths = Vec::new();
         // Numbers on every side of each width's marker.
@@ -1754,6 +1782,7 @@ mod tests {
             weight: [1.0; 3],
             t_max: 0.7,
             leaving: Some(PrimId(u32::MAX)),
+            light: None,
         };
         let front = cells.region(Region::Front);
         for n in 0..=16 {

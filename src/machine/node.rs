@@ -1060,6 +1060,7 @@ impl<'a> Node<'a> {
             let shadow = a.job.kind == RayKind::Shadow;
             let from = a.at.take();
             self.tracer.leaving(a.job.leaving);
+            self.tracer.toward(a.job.light);
             let walk = if shadow {
                 self.tracer
                     .walk_shadow(&a.job.ray, a.t_min, a.job.t_max, from)
@@ -1650,6 +1651,7 @@ mod tests {
                         weight: [1.0; 3],
                         t_max: f64::INFINITY,
                         leaving: None,
+                        light: None,
                     })
                     .collect();
                 let mut sorted = jobs.clone();

@@ -76,6 +76,11 @@ pub struct RayJob {
     /// find the surface it leaves. None for primary rays and where the
     /// primitive may be met again.
     pub leaving: Option<PrimId>,
+    /// For a shadow ray, the index of the light it goes to (None for other
+    /// rays, and past `u16::MAX` lights): the walk then need not find the
+    /// light from the ray's end (`Tracer::toward`), a search over the
+    /// lights per shadow ray.
+    pub light: Option<u16>,
 }
 
 impl RayJob {
@@ -142,6 +147,11 @@ pub trait Tracer {
     /// job's queries: every tracer must leave it out, so that all give the
     /// same answers.
     fn leaving(&mut self, prim: Option<PrimId>);
+
+    /// The light the shadow rays of the queries that follow go to
+    /// (`RayJob::light`), set before each job's queries. A hint: a tracer
+    /// that does not need it, or is not told, finds the same answers.
+    fn toward(&mut self, _light: Option<u16>) {}
 }
 
 /// Per-kind ray counters.
@@ -254,7 +264,7 @@ impl<'a> Shader<'a> {
         let leaving = |outward| prim.left_behind(outward).then_some(hit.prim);
 
         let local = w * m.ambient * m.color * scene.ambient;
-        for light in &scene.lights {
+        for (index, light) in scene.lights.iter().enumerate() {
             let to_light = light.position - p;
             let ndl = nf.dot(to_light);
             if ndl <= 0.0 {
@@ -281,6 +291,7 @@ impl<'a> Shader<'a> {
                 weight: to_weight(c),
                 t_max: 1.0,
                 leaving: leaving(outward),
+                light: u16::try_from(index).ok(),
             });
         }
 
@@ -302,6 +313,7 @@ impl<'a> Shader<'a> {
                         t_max: f64::INFINITY,
                         // Off the other side of the surface.
                         leaving: leaving(!outward),
+                        light: None,
                     });
                 }
                 Refraction::Transmitted(_) => {}
@@ -319,6 +331,7 @@ impl<'a> Shader<'a> {
                 weight: to_weight(w * reflect_share),
                 t_max: f64::INFINITY,
                 leaving: leaving(outward),
+                light: None,
             });
         }
         local
@@ -340,6 +353,7 @@ impl<'a> Shader<'a> {
         while let Some(mut job) = stack.pop() {
             counts.add(job.kind);
             tracer.leaving(job.leaving);
+            tracer.toward(job.light);
             if job.kind == RayKind::Shadow {
                 let mut t = 0.0;
                 let delivered = loop {
@@ -431,6 +445,7 @@ impl CameraFrame {
             weight: [weight as f32; 3],
             t_max: f64::INFINITY,
             leaving: None,
+            light: None,
         }
     }
 }

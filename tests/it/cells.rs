@@ -293,6 +293,10 @@ impl Tracer for Compare<'_> {
         self.cells.leaving(prim);
     }
 
+    fn toward(&mut self, light: Option<u16>) {
+        self.cells.toward(light);
+    }
+
     fn nearest(&mut self, ray: &Ray, t_min: f64, t_max: f64) -> Option<Hit> {
         let a = self.roth.nearest(ray, t_min, t_max);
         // A failed debug assertion in the walk is a difference too.

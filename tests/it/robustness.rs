@@ -1732,6 +1732,7 @@ fn case_24_rays_leaving_a_thin_cone_never_meet_it_at_their_start() {
                 weight: [1.0; 3],
                 t_max: f64::INFINITY,
                 leaving: None,
+                light: None,
             };
             roth.leaving(None);
             let Some(hit) = roth.nearest(&job.ray, 0.0, f64::INFINITY) else {
