@@ -90,6 +90,17 @@ impl Rect {
     pub fn set_hi(&mut self, axis: usize, v: f64) {
         if axis == 0 { self.x1 = v } else { self.y1 = v }
     }
+
+    /// The part of this rectangle inside `o`, if it has area.
+    pub fn overlap(&self, o: &Rect) -> Option<Rect> {
+        let r = Rect {
+            x0: self.x0.max(o.x0),
+            x1: self.x1.min(o.x1),
+            y0: self.y0.max(o.y0),
+            y1: self.y1.min(o.y1),
+        };
+        (r.x0 < r.x1 && r.y0 < r.y1).then_some(r)
+    }
 }
 
 /// Is `q` in the half-open `[lo, hi)` for a ray moving with sign `m` along

@@ -14,7 +14,7 @@ use rustc_hash::FxHashMap;
 use super::codec::{
     FrameLen, append_stamped, decode_envelope, encode_stamped, for_each_done, restamp,
 };
-use super::mapping::{self, Mapping};
+use super::mapping::{self, Mapping, Span};
 use super::message::{Finished, LinkModel, NodeReport, Part, Path, Share, ToHost, ToNode};
 use super::node;
 use super::replicas::{self, Replicas};
@@ -543,7 +543,8 @@ impl Plan {
             [Vec<u16>; 2],
             Vec<crate::cells::Move>,
         );
-        let rounds = |to_edges_too: bool, built: Built| -> Result<(Built, usize)> {
+        let own_span = if whole { Span::Edges } else { Span::Finite };
+        let rounds = |span: Span, built: Built| -> Result<(Built, usize)> {
             let (mut cells, mut hot, mut work, mut owner, mut moves) = built;
             let mut round = 0;
             // A plan more even than the one the rounds go on from, with its
@@ -554,21 +555,19 @@ impl Plan {
                 && round < HOT_ROUNDS
                 && mapping::predicted_imbalance(&work, &owner, d) > HOT_EVEN
             {
-                let more = mapping::hot(&cells, &work, d, (&cam, w, h), whole);
-                // Unbounded super cells cut out to the screen's edges as well
-                // (`mapping::hot`'s `to_edges`, which nodes holding everything
-                // always take): a ground seen in front of the scene lies in
+                let more = mapping::hot(&cells, &work, d, (&cam, w, h), own_span);
+                // Heavy super cells in front cut within another span
+                // (`mapping::Span`; nodes holding everything always take
+                // the edges): a ground seen in front of the scene lies in
                 // super cells past every finite cut, which the finite span
-                // leaves whole. Tried last in the rounds that allow it
-                // (below), and taken where it evens the loads more than the
-                // try taken before it: the SPD's rings on 32 nodes (its
-                // ground 1.9 nodes' loads, in two super cells), predicted
-                // 1.889 to 1.039 with fewer crossings, ran 197-204 virtual
-                // seconds against 292-386.
-                let edges = (to_edges_too && !whole)
-                    .then(|| mapping::hot(&cells, &work, d, (&cam, w, h), true))
+                // leaves whole; a narrow camera's pixels lie in a patch of
+                // a super cell far wider than the window. Tried last in the
+                // rounds made with that span (below), and taken where it
+                // evens the loads more than the try taken before it.
+                let other = (span != own_span)
+                    .then(|| mapping::hot(&cells, &work, d, (&cam, w, h), span))
                     .filter(|e| e[0] != more[0]);
-                if more.iter().all(Vec::is_empty) && edges.is_none() {
+                if more.iter().all(Vec::is_empty) && other.is_none() {
                     break;
                 }
                 // Behind the eye, rays converge on few points (a light behind
@@ -583,13 +582,13 @@ impl Plan {
                         tries.push(([more[0].clone(), Vec::new()], false));
                     }
                 }
-                tries.extend(edges.map(|e| (e, true)));
+                tries.extend(other.map(|e| (e, true)));
                 let was = mapping::predicted_imbalance(&work, &owner, d);
                 let (mut taken, mut passing) = (None, None);
-                for (more, to_edges) in tries {
+                for (more, other_span) in tries {
                     // The first try that evens the loads is taken; only the
-                    // edges' may still take its place.
-                    if taken.is_some() && !to_edges {
+                    // other span's may still take its place.
+                    if taken.is_some() && !other_span {
                         continue;
                     }
                     let mut next_hot = hot.clone();
@@ -668,42 +667,60 @@ impl Plan {
         // A round takes the try that evens the loads most, but a round
         // more even is not always the start of a plan more even
         // (`scenes/small/mirror.ron` on 32 nodes: the edges' first round
-        // 1.373 against 1.390, its last 1.358 against 1.256). So where the
-        // edges change the first round's pieces, the rounds are made both
-        // ways, and the edges' plan kept only if it is more even with no
-        // more crossings: the pieces of a floor cut to the edges send the
-        // rays that leave it across, and plans predicted more even but
-        // crossing more ran slower (on 64 and 128 nodes the jagged ball
-        // 608-610 and 559-638 virtual seconds against 455-475 and 520-522,
-        // predicted 1.105 and 1.174 against 1.121 and 1.365 with 4% and 2%
-        // more crossings; `behind_eye.ron` at 320x240 on 32 and 64 nodes
-        // 472-478 and 430-476 against 333-338 and 326-340, with 16% and
-        // 25% more). The rings, with 15% and 10% fewer, took theirs.
-        let edges_differ = !whole
-            && opts.mapping == Mapping::Balanced
-            && sub == Subdivision::Balanced
-            && mapping::predicted_imbalance(&work, &owner, d) > HOT_EVEN
-            && mapping::hot(&cells, &work, d, (&cam, w, h), true)[0]
-                != mapping::hot(&cells, &work, d, (&cam, w, h), false)[0];
-        let other_start = edges_differ.then(|| {
-            (
-                cells.clone(),
-                hot.clone(),
-                work.clone(),
-                owner.clone(),
-                moves.clone(),
-            )
-        });
-        let ((mut cells, hot, mut work, mut owner, mut moves), mut round) =
-            rounds(false, (cells, hot, work, owner, moves))?;
-        if let Some(start) = other_start {
-            let (edged, edged_rounds) = rounds(true, start)?;
-            if mapping::predicted_imbalance(&edged.2, &edged.3, d)
-                < mapping::predicted_imbalance(&work, &owner, d)
-                && edged.4.len() <= moves.len()
-            {
-                (cells, _, work, owner, moves) = edged;
-                round = edged_rounds;
+        // 1.373 against 1.390, its last 1.358 against 1.256). So where
+        // another span changes the first round's pieces, the rounds are
+        // also made with it, and its plan kept only if more even with no
+        // more crossings, or at most half as uneven. The pieces of a floor
+        // cut to the edges send the rays that leave it across, and plans
+        // predicted somewhat more even but crossing more ran slower (on 64
+        // and 128 nodes the jagged ball 608-610 and 559-638 virtual
+        // seconds against 455-475 and 520-522, predicted 1.105 and 1.174
+        // against 1.121 and 1.365 with 4% and 2% more crossings;
+        // `behind_eye.ron` at 320x240 on 32 and 64 nodes 472-478 and
+        // 430-476 against 333-338 and 326-340, with 16% and 25% more).
+        // The SPD's rings on 32 nodes (their ground 1.9 nodes' loads in
+        // two super cells) took the edges with 15% fewer: predicted 1.889
+        // to 1.039, 197-204 virtual seconds against 292-386. The jagged
+        // ball under a camera of a hundredth of a degree took the window
+        // with 6.2 times the crossings: predicted 19.3 to 1.80, 1,706-1,842
+        // virtual seconds against 6,033-6,589 (its wall time on this host
+        // 2.08-2.16 s against 1.33-1.38 s, the hops 5.4 M against 1.5 M).
+        let start = (cells, hot, work, owner, moves);
+        let spans: Vec<Span> = [Span::Edges, Span::Window]
+            .into_iter()
+            .filter(|&span| {
+                !whole
+                    && opts.mapping == Mapping::Balanced
+                    && sub == Subdivision::Balanced
+                    && mapping::predicted_imbalance(&start.2, &start.3, d) > HOT_EVEN
+                    && mapping::hot(&start.0, &start.2, d, (&cam, w, h), span)[0]
+                        != mapping::hot(&start.0, &start.2, d, (&cam, w, h), own_span)[0]
+            })
+            .collect();
+        let others: Vec<Built> = spans
+            .iter()
+            .map(|_| {
+                (
+                    start.0.clone(),
+                    start.1.clone(),
+                    start.2.clone(),
+                    start.3.clone(),
+                    start.4.clone(),
+                )
+            })
+            .collect();
+        let ((mut cells, mut hot, mut work, mut owner, mut moves), mut round) =
+            rounds(own_span, start)?;
+        let (own, own_moves) = (mapping::predicted_imbalance(&work, &owner, d), moves.len());
+        let mut most_even = own;
+        for (span, from) in spans.into_iter().zip(others) {
+            let (planned, its_rounds) = rounds(span, from)?;
+            let now = mapping::predicted_imbalance(&planned.2, &planned.3, d);
+            let pays = planned.4.len() <= own_moves || 2.0 * now <= own;
+            if now < most_even && pays {
+                most_even = now;
+                (cells, hot, work, owner, moves) = planned;
+                round = its_rounds;
             }
         }
         let hulls = cells.cell_hulls();
@@ -1836,6 +1853,29 @@ mod tests {
         .unwrap();
         let uneven = mapping::predicted_imbalance(&plan.work, &plan.owner, 5);
         assert!(uneven < 1.25, "predicted imbalance {uneven}");
+    }
+
+    /// A camera of a hundredth of a degree sees a patch of one super cell
+    /// whose rectangle is far wider than the window: its pieces are cut
+    /// within the window (`mapping::Span::Window`), where its pixels are.
+    /// The jagged ball so seen on 32 nodes at 64x48 predicted 19.3 in 8
+    /// super cells, 1.8 so split.
+    #[test]
+    fn a_narrow_cameras_patch_is_split_within_the_window() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/jagged_ball.ron");
+        let text = std::fs::read_to_string(&path)
+            .unwrap()
+            .replace("fov_y: 48", "fov_y: 0.01");
+        let scene = crate::scene::parse_scene_str(&text, crate::scene::SceneSyntax::Ron, &path)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let plan = Plan::new(
+            &scene,
+            &Topology::ipsc_d5(),
+            &MachineOptions::new(64, 48, 1),
+        )
+        .unwrap();
+        let uneven = mapping::predicted_imbalance(&plan.work, &plan.owner, 5);
+        assert!(uneven < 4.0, "predicted imbalance {uneven}");
     }
 
     /// With the whole scene on every node, pixels are dealt out by their

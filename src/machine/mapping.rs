@@ -267,17 +267,31 @@ pub const HOT_PIECE: f64 = 0.25;
 /// adds cells.
 pub const HOT_MIN_PIXELS: f64 = 16.0;
 
+/// Where `hot` cuts a heavy super cell in front of the eye.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Span {
+    /// Within the span of the region's finite coordinates.
+    Finite,
+    /// Within that span and the screen window: an unbounded super cell's
+    /// pixels may lie past every finite cut, out to the screen's edges.
+    Edges,
+    /// Within its overlap with the screen window, where it has one: its
+    /// pixels' work is there, however far its rectangle reaches (a camera
+    /// of a hundredth of a degree sees a patch of one super cell whose
+    /// rectangle is thousands of windows wide).
+    Window,
+}
+
 /// The parts of each region's plane where the build must split its super
 /// cells smaller (`bsp::Hot`), by the work `work` estimates per super cell
 /// for `2^d` nodes: each super cell of more than `HOT_LOAD` of a node's
 /// mean load, into pieces of at most `HOT_PIECE` of it (supposing its work
 /// spread evenly over its rectangle) and at least `HOT_MIN_PIXELS` pixels
-/// of `cam`'s `width` by `height` image. An unbounded super cell
-/// (the partition is of the whole plane) is cut within the span of the
-/// region's finite coordinates, and, with `to_edges`, of the screen window
-/// too, since its pixels may lie past the first, out to the screen's edges.
-/// `to_edges` is for nodes that hold everything (`map_whole`), where a
-/// split costs no crossing: on 32 nodes the jagged ball's heaviest super
+/// of `cam`'s `width` by `height` image. In front of the eye a super cell
+/// is cut within `span` (an unbounded one, as the partition is of the
+/// whole plane, within finite coordinates in every case).
+/// `Span::Edges` is what nodes that hold everything take (`map_whole`),
+/// where a split costs no crossing: on 32 nodes the jagged ball's heaviest super
 /// cells (its floor, 1.5 to 2 nodes' loads) reached past every finite cut,
 /// and unsplit they kept the loads at 1.55-1.57 predicted and 1.62-1.66
 /// measured; cut to the edges, 1.002-1.006 and 1.20-1.26. Where rays walk
@@ -290,7 +304,7 @@ pub fn hot(
     work: &[Vec<f64>; 2],
     d: u32,
     (cam, width, height): (&CameraFrame, u32, u32),
-    to_edges: bool,
+    span: Span,
 ) -> [Vec<Hot>; 2] {
     let mean = work.iter().flatten().sum::<f64>() / (1u64 << d) as f64;
     let pixel_area = (2.0 * cam.half_w / f64::from(width)) * (2.0 * cam.half_h / f64::from(height));
@@ -300,7 +314,7 @@ pub fn hot(
         let (mut lo, mut hi) = finite_span(supers.iter().map(|s| &s.rect));
         let min_area = match r {
             Region::Front => {
-                if to_edges {
+                if span == Span::Edges {
                     for (k, half) in [cam.half_w, cam.half_h].into_iter().enumerate() {
                         lo[k] = lo[k].min(-half);
                         hi[k] = hi[k].max(half);
@@ -324,16 +338,30 @@ pub fn hot(
                 HOT_MIN_PIXELS * area / (f64::from(width) * f64::from(height))
             }
         };
-        let span = (lo, hi);
+        let finite = (lo, hi);
+        let window = Rect {
+            x0: -cam.half_w,
+            x1: cam.half_w,
+            y0: -cam.half_h,
+            y1: cam.half_h,
+        };
         supers
             .iter()
             .zip(&work[r as usize])
             .filter(|&(_, &w)| d > 0 && w > HOT_LOAD * mean)
             .filter_map(|(s, &w)| {
-                let [Some((x0, x1)), Some((y0, y1))] = clamped(&s.rect, span) else {
-                    return None;
+                let seen = (r == Region::Front && span == Span::Window)
+                    .then(|| s.rect.overlap(&window))
+                    .flatten();
+                let rect = match seen {
+                    Some(seen) => seen,
+                    None => {
+                        let [Some((x0, x1)), Some((y0, y1))] = clamped(&s.rect, finite) else {
+                            return None;
+                        };
+                        Rect { x0, x1, y0, y1 }
+                    }
                 };
-                let rect = Rect { x0, x1, y0, y1 };
                 let area = (rect.x1 - rect.x0) * (rect.y1 - rect.y0);
                 let max_area = (area / (w / (HOT_PIECE * mean)).ceil()).max(min_area);
                 (area > max_area).then_some(Hot { rect, max_area })

@@ -265,7 +265,13 @@ fn splits_that_multiply_the_crossings_are_not_made() {
     let plan = Plan::with_subdivision(&scene, &topo(d), &o, Subdivision::Balanced).unwrap();
     assert_eq!(plan.split_super_cells, 0);
     let cam = CameraFrame::new(&scene, w, h);
-    let heavy = machine::mapping::hot(&plan.cells, &plan.work, d, (&cam, w, h), false);
+    let heavy = machine::mapping::hot(
+        &plan.cells,
+        &plan.work,
+        d,
+        (&cam, w, h),
+        machine::mapping::Span::Finite,
+    );
     assert!(
         heavy.iter().any(|r| !r.is_empty()),
         "no heavy super cell to split"
