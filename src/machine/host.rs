@@ -1845,14 +1845,14 @@ mod tests {
             std::path::Path::new("rings"),
         )
         .unwrap();
-        let plan = Plan::new(
-            &scene,
-            &Topology::ipsc_d5(),
-            &MachineOptions::new(128, 128, 1),
-        )
-        .unwrap();
-        let uneven = mapping::predicted_imbalance(&plan.work, &plan.owner, 5);
+        let uneven = predicted_on_32(&scene, 128, 128);
         assert!(uneven < 1.25, "predicted imbalance {uneven}");
+    }
+
+    /// The imbalance the plan for the iPSC-D5's 32 nodes predicts.
+    fn predicted_on_32(scene: &Scene, w: u32, h: u32) -> f64 {
+        let plan = Plan::new(scene, &Topology::ipsc_d5(), &MachineOptions::new(w, h, 1)).unwrap();
+        mapping::predicted_imbalance(&plan.work, &plan.owner, 5)
     }
 
     /// A camera of a hundredth of a degree sees a patch of one super cell
@@ -1868,13 +1868,7 @@ mod tests {
             .replace("fov_y: 48", "fov_y: 0.01");
         let scene = crate::scene::parse_scene_str(&text, crate::scene::SceneSyntax::Ron, &path)
             .unwrap_or_else(|e| panic!("{e}"));
-        let plan = Plan::new(
-            &scene,
-            &Topology::ipsc_d5(),
-            &MachineOptions::new(64, 48, 1),
-        )
-        .unwrap();
-        let uneven = mapping::predicted_imbalance(&plan.work, &plan.owner, 5);
+        let uneven = predicted_on_32(&scene, 64, 48);
         assert!(uneven < 4.0, "predicted imbalance {uneven}");
     }
 
