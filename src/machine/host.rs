@@ -533,9 +533,9 @@ impl Plan {
         };
         let (work, owner, moves) = map(&cells)?;
         let as_built = moves.len();
-        // The rounds of hot splits from a plan as built, with the edges'
-        // tries (below) or without: the plan they end with, and how many
-        // rounds built it.
+        // The rounds of hot splits from a plan as built, with a try cut
+        // within `span` (below) where it is not the plan's own: the plan
+        // they end with, and how many rounds built it.
         type Built = (
             CellStructure,
             [Vec<crate::cells::Hot>; 2],
@@ -686,29 +686,21 @@ impl Plan {
         // virtual seconds against 6,033-6,589 (its wall time on this host
         // 2.08-2.16 s against 1.33-1.38 s, the hops 5.4 M against 1.5 M).
         let start = (cells, hot, work, owner, moves);
-        let spans: Vec<Span> = [Span::Edges, Span::Window]
-            .into_iter()
-            .filter(|&span| {
-                !whole
-                    && opts.mapping == Mapping::Balanced
-                    && sub == Subdivision::Balanced
-                    && mapping::predicted_imbalance(&start.2, &start.3, d) > HOT_EVEN
-                    && mapping::hot(&start.0, &start.2, d, (&cam, w, h), span)[0]
-                        != mapping::hot(&start.0, &start.2, d, (&cam, w, h), own_span)[0]
-            })
-            .collect();
-        let others: Vec<Built> = spans
-            .iter()
-            .map(|_| {
-                (
-                    start.0.clone(),
-                    start.1.clone(),
-                    start.2.clone(),
-                    start.3.clone(),
-                    start.4.clone(),
-                )
-            })
-            .collect();
+        let first = |span| mapping::hot(&start.0, &start.2, d, (&cam, w, h), span);
+        let spans: Vec<Span> = if !whole
+            && opts.mapping == Mapping::Balanced
+            && sub == Subdivision::Balanced
+            && mapping::predicted_imbalance(&start.2, &start.3, d) > HOT_EVEN
+        {
+            let own_first = first(own_span);
+            [Span::Edges, Span::Window]
+                .into_iter()
+                .filter(|&span| first(span)[0] != own_first[0])
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let others: Vec<Built> = spans.iter().map(|_| start.clone()).collect();
         let ((mut cells, mut hot, mut work, mut owner, mut moves), mut round) =
             rounds(own_span, start)?;
         let (own, own_moves) = (mapping::predicted_imbalance(&work, &owner, d), moves.len());
