@@ -777,6 +777,9 @@ fn run_render(a: RenderArgs) -> Result<()> {
                 "hypercast: modelled machine: {:.3} s virtual; {} messages, {} bytes, {} hops; busy imbalance {:.2} (max/mean)",
                 ms.virtual_seconds, ms.messages, ms.message_bytes, ms.hops, ms.imbalance
             );
+            if let Some(note) = whole_for_note(ms.whole_for) {
+                eprintln!("hypercast: note: {note}");
+            }
             if let Some((topo, _)) = &job.machine
                 && let Some(hint) = whole_scene_hint(ms, topo.node_memory)
             {
@@ -831,12 +834,17 @@ fn run_render(a: RenderArgs) -> Result<()> {
 /// and 300 lights kept its work on one node of 32 (its splits would have
 /// sent rays between nodes at every turn), 67,400 virtual seconds and
 /// 6.1 s of wall time against 5,700 and 5.6 s with the whole scene on
-/// every node, where the pre-pass deals the pixels out.
+/// every node, where the pre-pass deals the pixels out. The default now
+/// takes the whole scene itself there (`machine::host::Plan::or_whole`),
+/// and never hints after it has: the hint is left for what it does not
+/// take, an imbalance the pre-pass did not predict, or one too sparse to
+/// deal the pixels out by (`AUTO_WHOLE_PREPASS`).
 fn whole_scene_hint(ms: &MachineStats, node_memory: u64) -> Option<String> {
     let mib = |b: u64| b as f64 / 1048576.0;
     let uneven =
         ms.per_node.len() > 1 && ms.imbalance >= WHOLE_HINT_UNEVEN && ms.wall_seconds >= 1.0;
     if ms.replicas != Some(machine::Replicas::Auto)
+        || ms.whole
         || !(ms.hops > 0 || uneven)
         || ms.replicated_bytes > node_memory / 2
     {
@@ -857,6 +865,26 @@ fn whole_scene_hint(ms: &MachineStats, node_memory: u64) -> Option<String> {
         mib(ms.replicated_bytes),
         mib(node_memory)
     ))
+}
+
+/// Where `--replicas auto` put the whole scene on every node
+/// (`machine::host::Plan::whole_for`), what the paper's plan would have
+/// done and how to have it.
+fn whole_for_note(whole_for: Option<f64>) -> Option<String> {
+    whole_for.map(|uneven| {
+        format!(
+            "every node held the whole scene: distributed as in the paper, the work would have \
+             sat on few nodes (predicted imbalance {uneven:.1}); --replicas none keeps the \
+             paper's plan"
+        )
+    })
+}
+
+/// The stats' name of where the structure lies: `whole` on every node, or
+/// `distributed` over them (with copies where `--replicas auto` placed
+/// them).
+fn placement(whole: bool) -> &'static str {
+    if whole { "whole" } else { "distributed" }
 }
 
 /// The busy imbalance from which a render that sent no path between nodes
@@ -981,6 +1009,8 @@ pub fn machine_json(topo: &Topology, ms: &MachineStats) -> Vec<(&'static str, se
         ("hops", json!(ms.hops)),
         ("mapping", json!(ms.mapping.map(|m| m.name()))),
         ("replicas", json!(ms.replicas.map(|r| r.name()))),
+        ("placement", json!(placement(ms.whole))),
+        ("distributed_predicted_imbalance", json!(ms.whole_for)),
         (
             "copies",
             json!(ms.per_node.iter().map(|n| n.copies).sum::<u64>()),
@@ -1145,6 +1175,11 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
     if plan.subdivision != machine::host::Subdivision::Balanced {
         outln!("subdivision         {}", plan.subdivision.describe())?;
     }
+    if let Some(uneven) = plan.whole_for {
+        outln!(
+            "placement           the whole scene on every node: distributed, the plan predicted imbalance {uneven:.3} (--replicas none keeps it)"
+        )?;
+    }
     outln!(
         "node  super_cells  copies  cells  primitives  memory_MiB  structure_MiB  estimated_work"
     )?;
@@ -1183,7 +1218,7 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
     )?;
     // What the plan's splits and mapping came to: the render's busy
     // imbalance is this, give or take the pre-pass's error.
-    let uneven = machine::mapping::predicted_imbalance(&plan.work, &plan.owner, topo.dimension);
+    let uneven = plan.predicted_imbalance(topo.dimension);
     outln!("predicted imbalance {uneven:.3} (the most estimated work of a node against the mean)")?;
     if let Err(e) = plan.check(&scene, &topo) {
         let e = spinning(a.quiet, "plan larger machines", || {
@@ -1202,6 +1237,8 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
             ("window", json!(plan.window)),
             ("split_super_cells", json!(plan.split_super_cells)),
             ("subdivision", json!(plan.subdivision.name())),
+            ("placement", json!(placement(plan.whole))),
+            ("distributed_predicted_imbalance", json!(plan.whole_for)),
             ("predicted_imbalance", num(uneven)),
             ("per_node", json!(nodes_json)),
         ],
@@ -1288,6 +1325,9 @@ fn run_scale(a: ScaleArgs) -> Result<()> {
     let cores = crate::trace::host_cores();
     for r in &rows {
         if let Some(note) = busy_host_note(r.host_share, r.nodes.min(cores)) {
+            eprintln!("hypercast: note: at d = {}, {note}", r.dimension);
+        }
+        if let Some(note) = whole_for_note(r.whole_for) {
             eprintln!("hypercast: note: at d = {}, {note}", r.dimension);
         }
     }
@@ -1413,6 +1453,9 @@ mod tests {
         let mut chosen = ms(10, 1.1, 0.1);
         chosen.replicas = Some(Replicas::None);
         assert_eq!(hint(&chosen), None, "a placement the user chose");
+        let mut taken = ms(0, 32.0, 6.1);
+        taken.whole = true;
+        assert_eq!(hint(&taken), None, "the whole scene the default took");
         assert_eq!(
             super::whole_scene_hint(&ms(10, 1.1, 0.1), mib),
             None,

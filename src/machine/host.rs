@@ -127,6 +127,11 @@ pub struct MachineStats {
     pub per_node: Vec<NodeReport>,
     /// Bytes one node would hold with the whole structure and scene.
     pub replicated_bytes: u64,
+    /// Every node held the whole scene (`Plan::whole`); where the user
+    /// did not ask for it, the distributed plan's predicted imbalance that
+    /// made `--replicas auto` choose it (`Plan::whole_for`).
+    pub whole: bool,
+    pub whole_for: Option<f64>,
 }
 
 impl MachineStats {
@@ -328,6 +333,38 @@ const HOT_EVEN: f64 = 1.1;
 /// `glass.ron` 1.45, `jagged_ball.ron` 0.92 and 1.02.
 const HOT_CROSSINGS: f64 = 2.0;
 
+/// The predicted imbalance of a distributed plan (`mapping::
+/// predicted_imbalance`: the busiest node's estimated work against the
+/// mean) from which `--replicas auto` puts the whole scene on every node
+/// instead (on 2 nodes, 2: all the work on one), where it takes at most
+/// half a node and the pre-pass finds that plan's busiest node at most two
+/// thirds as busy (`Plan::or_whole`): the paper's plan would leave three
+/// quarters of the machine idle. Three primitives under 300
+/// lights on 32 nodes kept all their work on one node (predicted 32.0; its
+/// super cells split for balance sent every hit's 300 shadow rays between
+/// nodes, 144 GB of messages, and ran 59,159 virtual seconds): 64,413
+/// virtual seconds against 4,964 with the whole scene. The bundled scenes
+/// predict at most 3.7 on 2 to 32 nodes (`scenes/small/difference.ron`;
+/// the larger ones at most 1.24), so the default keeps the paper's plan
+/// for them; on 128 nodes the small ones (64x48 pixels, 24 a node) reach
+/// 4.8 to 37.
+const AUTO_WHOLE_UNEVEN: f64 = 4.0;
+
+/// Pixels of the pre-pass per node (`mapping::prepass_pixels`) below
+/// which `--replicas auto` keeps the distributed plan however uneven
+/// (`Plan::or_whole`): with the whole scene on every node the pre-pass's
+/// estimate deals out the super cells alone, and where it samples a few
+/// pixels of each node's share it misjudges them. On 32 nodes, against
+/// the distributed plans' busy imbalance of 32 (all the work on one
+/// node), the whole scene's was 22.5 for a hall of mirrors at 80x60 (2.2
+/// pre-pass pixels a node; 11,357 virtual seconds against 4,642), 6.3 at
+/// 160x120 (9.4 a node; 14,859 against 19,853), 1.5 at 240x180 (21 a
+/// node; 8,933 against 43,499); three primitives under 300 lights 9.1 at
+/// 160x120 (7,065 against 10,777), 3.9 at 240x180 (7,618 against
+/// 25,903); on 64 nodes the small sphere at 64x48 (0.75 a node) ran
+/// 14.2 virtual seconds against 2.2.
+const AUTO_WHOLE_PREPASS: f64 = 8.0;
+
 /// Crossings between nodes per pixel of the pre-pass (`Plan::new`) past
 /// which the plan is made again with the cost model's own super cells,
 /// and kept if that halves them (`HOT_CROSSINGS`). On 32 nodes the
@@ -371,6 +408,10 @@ pub struct Plan {
     pub copies: Option<crate::cells::Copies>,
     /// Every node holds the whole structure (`Replicas::Whole`).
     pub whole: bool,
+    /// Where `--replicas auto` put the whole scene on every node, because
+    /// the distributed plan would have left most nodes idle: that plan's
+    /// predicted imbalance (`Plan::or_whole`).
+    pub whole_for: Option<f64>,
 }
 
 /// Which of a plan's distinct shares node `node` gets: the one for all
@@ -437,10 +478,58 @@ impl Plan {
     /// `check`, the plan whose largest share is smallest, so that the
     /// memory the refusal names is the least that would do. The other
     /// plans are made only where the first does not fit or scatters.
+    /// Under `--replicas auto`, a plan that fits but would leave most nodes
+    /// idle gives way to the whole scene on every node (`or_whole`).
     /// Fails (`Error::Render`) only if the OS refuses a thread of the
     /// build (`CellStructure::build`) or of the mapping's pre-pass
     /// (`mapping::map`).
     pub fn new(scene: &Scene, topo: &Topology, opts: &MachineOptions) -> Result<Plan> {
+        let distributed = Plan::distributed(scene, topo, opts)?;
+        distributed.or_whole(scene, topo, opts)
+    }
+
+    /// Under `--replicas auto`, the plan with the whole scene on every
+    /// node instead of this one, where this one would leave most nodes
+    /// idle (`AUTO_WHOLE_UNEVEN`, or on fewer nodes all its work on one),
+    /// the whole scene takes at most half a node, and the pre-pass finds
+    /// its busiest node at most two thirds as busy; else this one. Fails
+    /// as `new` does.
+    fn or_whole(self, scene: &Scene, topo: &Topology, opts: &MachineOptions) -> Result<Plan> {
+        let uneven = self.predicted_imbalance(topo.dimension);
+        let nodes = self.share_bytes.len() as f64;
+        let sampled = mapping::prepass_pixels(opts.width, opts.height, self.share_bytes.len());
+        if opts.replicas != Replicas::Auto
+            || opts.mapping != Mapping::Balanced
+            || nodes < 2.0
+            || (sampled as f64) < AUTO_WHOLE_PREPASS * nodes
+            || self.window == 0
+            || uneven < AUTO_WHOLE_UNEVEN.min(nodes)
+            || self.replicated_bytes > topo.node_memory / 2
+        {
+            return Ok(self);
+        }
+        let whole_opts = MachineOptions {
+            replicas: Replicas::Whole,
+            ..opts.clone()
+        };
+        let mut whole = Plan::with_subdivision(scene, topo, &whole_opts, Subdivision::Balanced)?;
+        if whole.window == 0 || 1.5 * whole.predicted_imbalance(topo.dimension) > uneven {
+            return Ok(self);
+        }
+        whole.prepass_seconds += self.prepass_seconds;
+        whole.whole_for = Some(uneven);
+        Ok(whole)
+    }
+
+    /// The most estimated work of a node against the mean, as the mapping's
+    /// pre-pass predicts it (`mapping::predicted_imbalance`).
+    pub fn predicted_imbalance(&self, d: u32) -> f64 {
+        mapping::predicted_imbalance(&self.work, &self.owner, d)
+    }
+
+    /// `new`'s plan with the structure distributed over the nodes, as in the
+    /// paper (with copies where `--replicas auto` places them).
+    fn distributed(scene: &Scene, topo: &Topology, opts: &MachineOptions) -> Result<Plan> {
         let first = Plan::with_subdivision(scene, topo, opts, Subdivision::Balanced)?;
         if topo.dimension == 0 {
             return Ok(first);
@@ -833,6 +922,7 @@ impl Plan {
             crossings: moves.len() as u64,
             copies,
             whole,
+            whole_for: None,
         })
     }
 
@@ -1277,6 +1367,8 @@ fn run_pass(
         window: plan.window,
         mapping: Some(opts.mapping),
         replicas: Some(opts.replicas),
+        whole: plan.whole,
+        whole_for: plan.whole_for,
         messages: run.messages,
         message_bytes: run.bytes,
         ..Default::default()

@@ -46,7 +46,10 @@ use crate::trace::collect_parallel;
 pub enum Replicas {
     // The variants' doc comments are `--replicas`'s help: for users.
     /// Copies of the super cells a node's rays reach most, where memory
-    /// allows (default).
+    /// allows; the whole scene on every node where, distributed, the work
+    /// would sit on few nodes and the scene takes at most half a node
+    /// (default).
+    // `host::Plan::or_whole`, `AUTO_WHOLE_UNEVEN`.
     #[default]
     Auto,
     /// No copies: every ray that reaches another node's cell goes there

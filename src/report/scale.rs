@@ -69,6 +69,10 @@ pub struct ScaleRow {
     /// (`MachineStats::host_share`), median over the rounds: well under 1,
     /// other work on the host made the wall times unfit to compare.
     pub host_share: Option<f64>,
+    /// Where the default placement put the whole scene on every node, as
+    /// the distributed plan would have left most nodes idle: that plan's
+    /// predicted imbalance (`MachineStats::whole_for`).
+    pub whole_for: Option<f64>,
 }
 
 /// A run's virtual efficiency against the first dimension's run of the
@@ -371,12 +375,13 @@ pub fn measure(
                 .map(|r| r.host_share(cores))
                 .collect::<Option<Vec<f64>>>()
                 .map(median),
+            whole_for: rep.whole_for,
         });
     }
     Ok(rows)
 }
 
-const HEADER: [&str; 29] = [
+const HEADER: [&str; 30] = [
     "dimension",
     "nodes",
     "wall_seconds",
@@ -406,9 +411,10 @@ const HEADER: [&str; 29] = [
     "utilisation",
     "waiting",
     "host_share",
+    "whole_for",
 ];
 
-fn fields(r: &ScaleRow) -> [String; 29] {
+fn fields(r: &ScaleRow) -> [String; 30] {
     [
         r.dimension.to_string(),
         r.nodes.to_string(),
@@ -443,6 +449,8 @@ fn fields(r: &ScaleRow) -> [String; 29] {
         format!("{:.3}", r.factors.waiting),
         // Empty where the runs were too short to tell.
         r.host_share.map_or(String::new(), |s| format!("{s:.3}")),
+        // Empty where the structure was distributed.
+        r.whole_for.map_or(String::new(), |u| format!("{u:.3}")),
     ]
 }
 

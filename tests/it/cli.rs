@@ -678,6 +678,60 @@ fn a_scene_that_fits_every_node_gets_the_whole_scene_hint() {
     assert!(!err.contains(hint), "512 KiB nodes: {err}");
 }
 
+/// Where the paper's distributed plan would leave most nodes idle (a room
+/// of mirrors on 4 nodes, all its work on one), the default puts the whole
+/// scene on every node and says so, in the render's note, its statistics
+/// and `inspect`; `--replicas none` keeps the paper's plan, and the image
+/// is the same.
+#[test]
+fn the_default_placement_names_a_whole_scene_it_chose() {
+    let tmp = tempfile::tempdir().unwrap();
+    let hall = tmp.path().join("hall.ron");
+    std::fs::write(
+        &hall,
+        hypercast::r#gen::stress::mirror_hall(16, true, 64, 48),
+    )
+    .unwrap();
+    let machine = ["--dim", "2"];
+    let render = |out: &str, extra: &[&str]| -> (String, serde_json::Value) {
+        let stats = format!("{out}.json");
+        let mut args = vec!["render", path_str(&hall), "-o", out, "--stats", &stats];
+        args.extend_from_slice(&machine);
+        args.extend_from_slice(extra);
+        let o = run(tmp.path(), &args);
+        assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+        let text = std::fs::read_to_string(tmp.path().join(&stats)).unwrap();
+        (stderr(&o), serde_json::from_str(&text).unwrap())
+    };
+    let note = "every node held the whole scene";
+    let (err, stats) = render("auto.png", &[]);
+    assert!(
+        err.contains(note) && err.contains("--replicas none"),
+        "{err}"
+    );
+    assert_eq!(stats["placement"], "whole", "{stats}");
+    let uneven = stats["distributed_predicted_imbalance"].as_f64().unwrap();
+    assert!(uneven >= 4.0, "{stats}");
+    assert_eq!(stats["hops"], 0);
+    let (err, stats) = render("paper.png", &["--replicas", "none"]);
+    assert!(!err.contains(note), "{err}");
+    assert_eq!(stats["placement"], "distributed", "{stats}");
+    assert!(
+        stats["distributed_predicted_imbalance"].is_null(),
+        "{stats}"
+    );
+    let image = |f: &str| std::fs::read(tmp.path().join(f)).unwrap();
+    assert_eq!(image("auto.png"), image("paper.png"));
+    let mut args = vec!["inspect", path_str(&hall)];
+    args.extend_from_slice(&machine);
+    let o = run(tmp.path(), &args);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        out.contains("placement           the whole scene on every node"),
+        "{out}"
+    );
+}
+
 /// `--stats` says what a scene does not need, in numbers (issue 5): no
 /// shadow rays without lights, no reflected rays without `reflect`, no
 /// refracted rays without `transmit`, only the pixels that see something

@@ -245,6 +245,50 @@ fn the_balanced_mapping_evens_the_predicted_load() {
     assert!(imbalance < 1.25, "predicted imbalance {imbalance}");
 }
 
+/// Where the paper's distributed plan would leave most nodes idle, the
+/// default puts the whole scene on every node: a room of mirrors on 4
+/// nodes, whose rays cross between nodes at every turn, gathers its work
+/// on the cost model's super cells, all on one node (predicted imbalance
+/// 4); with the whole scene the pixels are dealt out. The same image, no
+/// hop; `--replicas none` keeps the paper's plan.
+#[test]
+fn a_plan_that_would_idle_most_nodes_gives_way_to_the_whole_scene() {
+    use hypercast::machine::host::Plan;
+    let text = hypercast::r#gen::stress::mirror_hall(16, true, 64, 48);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("hall.ron");
+    std::fs::write(&path, text).unwrap();
+    let scene = load_scene(&path).unwrap();
+    let (w, h, d) = (64, 48, 2);
+    let o = MachineOptions::new(w, h, 1);
+    let paper = MachineOptions {
+        replicas: Replicas::None,
+        ..o.clone()
+    };
+    let distributed = Plan::new(&scene, &topo(d), &paper).unwrap();
+    let uneven = distributed.predicted_imbalance(d);
+    assert!(!distributed.whole && uneven >= 4.0, "predicted {uneven}");
+    let default = Plan::new(&scene, &topo(d), &o).unwrap();
+    assert!(default.whole, "the default kept the distributed plan");
+    assert!(default.predicted_imbalance(d) * 1.5 <= default.whole_for.unwrap());
+    let (film, stats, _) = machine::render(&scene, &topo(d), &o, &|_| {}).unwrap();
+    assert!(stats.whole && stats.whole_for.is_some() && stats.hops == 0);
+    assert!(stats.imbalance < 2.0, "busy imbalance {}", stats.imbalance);
+    check_stats(&scene, &stats);
+    let (paper_film, paper_stats, _) = machine::render(&scene, &topo(d), &paper, &|_| {}).unwrap();
+    assert!(!paper_stats.whole && paper_stats.whole_for.is_none());
+    let (alone, _) = machine(&scene, 0, w, h, 16);
+    assert_eq!(differing(&film, &alone), 0);
+    assert_eq!(differing(&paper_film, &alone), 0);
+    // Where the pre-pass samples too few pixels a node to deal the super
+    // cells out (the small sphere's 64x48 on 64 nodes), the default keeps
+    // the distributed plan, however uneven.
+    let sphere = load_scene(&repo("scenes/small/sphere.ron")).unwrap();
+    let plan = Plan::new(&sphere, &topo(6), &o).unwrap();
+    let uneven = plan.predicted_imbalance(6);
+    assert!(!plan.whole && uneven >= 4.0, "predicted {uneven}");
+}
+
 /// Splits that would multiply the crossings between nodes are not made:
 /// in a hall of mirrors with a glass ball every ray goes everywhere, and
 /// split super cells only send it between nodes more often. The heavy
