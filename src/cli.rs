@@ -837,8 +837,7 @@ fn run_render(a: RenderArgs) -> Result<()> {
 /// every node, where the pre-pass deals the pixels out. The default now
 /// takes the whole scene itself there (`machine::host::Plan::or_whole`),
 /// and never hints after it has: the hint is left for what it does not
-/// take, an imbalance the pre-pass did not predict, or one too sparse to
-/// deal the pixels out by (`AUTO_WHOLE_PREPASS`).
+/// take, an imbalance the pre-pass did not predict.
 fn whole_scene_hint(ms: &MachineStats, node_memory: u64) -> Option<String> {
     let mib = |b: u64| b as f64 / 1048576.0;
     let uneven =

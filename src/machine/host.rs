@@ -345,25 +345,13 @@ const HOT_CROSSINGS: f64 = 2.0;
 /// nodes, 144 GB of messages, and ran 59,159 virtual seconds): 64,413
 /// virtual seconds against 4,964 with the whole scene. The bundled scenes
 /// predict at most 3.7 on 2 to 32 nodes (`scenes/small/difference.ron`;
-/// the larger ones at most 1.24), so the default keeps the paper's plan
-/// for them; on 128 nodes the small ones (64x48 pixels, 24 a node) reach
-/// 4.8 to 37.
+/// the larger ones at most 2.65 on 2 to 128), so the default keeps the
+/// paper's plan for them; on 64 and 128 nodes the small ones (64x48
+/// pixels) predict 4.4 to 37 and take the whole scene: on 128 nodes
+/// `scenes/small/behind_eye.ron` ran 34-36 virtual seconds before and
+/// 5.1-6.6 after, `many_lights.ron` 38-39 and 8.1-10.7, `shadow.ron`
+/// 6.4-6.7 both (two runs each).
 const AUTO_WHOLE_UNEVEN: f64 = 4.0;
-
-/// Pixels of the pre-pass per node (`mapping::prepass_pixels`) below
-/// which `--replicas auto` keeps the distributed plan however uneven
-/// (`Plan::or_whole`): with the whole scene on every node the pre-pass's
-/// estimate deals out the super cells alone, and where it samples a few
-/// pixels of each node's share it misjudges them. On 32 nodes, against
-/// the distributed plans' busy imbalance of 32 (all the work on one
-/// node), the whole scene's was 22.5 for a hall of mirrors at 80x60 (2.2
-/// pre-pass pixels a node; 11,357 virtual seconds against 4,642), 6.3 at
-/// 160x120 (9.4 a node; 14,859 against 19,853), 1.5 at 240x180 (21 a
-/// node; 8,933 against 43,499); three primitives under 300 lights 9.1 at
-/// 160x120 (7,065 against 10,777), 3.9 at 240x180 (7,618 against
-/// 25,903); on 64 nodes the small sphere at 64x48 (0.75 a node) ran
-/// 14.2 virtual seconds against 2.2.
-const AUTO_WHOLE_PREPASS: f64 = 8.0;
 
 /// Crossings between nodes per pixel of the pre-pass (`Plan::new`) past
 /// which the plan is made again with the cost model's own super cells,
@@ -492,16 +480,15 @@ impl Plan {
     /// node instead of this one, where this one would leave most nodes
     /// idle (`AUTO_WHOLE_UNEVEN`, or on fewer nodes all its work on one),
     /// the whole scene takes at most half a node, and the pre-pass finds
-    /// its busiest node at most two thirds as busy; else this one. Fails
-    /// as `new` does.
+    /// its busiest node at most two thirds as busy (`mapping::map_whole`,
+    /// which samples small images finely enough to deal them out); else
+    /// this one. Fails as `new` does.
     fn or_whole(self, scene: &Scene, topo: &Topology, opts: &MachineOptions) -> Result<Plan> {
         let uneven = self.predicted_imbalance(topo.dimension);
         let nodes = self.share_bytes.len() as f64;
-        let sampled = mapping::prepass_pixels(opts.width, opts.height, self.share_bytes.len());
         if opts.replicas != Replicas::Auto
             || opts.mapping != Mapping::Balanced
             || nodes < 2.0
-            || (sampled as f64) < AUTO_WHOLE_PREPASS * nodes
             || self.window == 0
             || uneven < AUTO_WHOLE_UNEVEN.min(nodes)
             || self.replicated_bytes > topo.node_memory / 2

@@ -81,6 +81,32 @@ pub fn prepass_pixels(width: u32, height: u32, nodes: usize) -> u64 {
     prepass_pixels_at(width, height, prepass_stride(width, height, nodes))
 }
 
+/// `prepass_stride` for `map_whole`, finer than `PREPASS_STRIDE` (down to
+/// every pixel) where the image is too small for `WHOLE_PREPASS_PER_NODE`
+/// pixels a node at it. With the whole scene on every node the pre-pass's
+/// estimate alone deals out the super cells, and a super cell it did not
+/// sample weighs nothing: every such one went to the same node, the least
+/// loaded. A room of mirrors at 80x60 on 32 nodes (2.2 pixels a node at
+/// `PREPASS_STRIDE`) ran 14,986 virtual seconds, busy imbalance 23.5, and
+/// 983 s, 1.21, at stride 2; `scenes/small/behind_eye.ron` at 64x48 on
+/// 128 nodes 177 s (89) and 7.4 s (1.63) at stride 1. A small image's
+/// pre-pass is cheap, so the floor costs the plan little.
+pub fn whole_prepass_stride(width: u32, height: u32, nodes: usize) -> u32 {
+    let stride = prepass_stride(width, height, nodes);
+    let per_node = |stride| prepass_pixels_at(width, height, stride) / nodes.max(1) as u64;
+    if stride > PREPASS_STRIDE || per_node(stride) >= WHOLE_PREPASS_PER_NODE {
+        return stride;
+    }
+    (1..PREPASS_STRIDE)
+        .rev()
+        .find(|&s| per_node(s) >= WHOLE_PREPASS_PER_NODE)
+        .unwrap_or(1)
+}
+
+/// Pre-pass pixels per node that `whole_prepass_stride` samples at least
+/// where the image allows.
+pub const WHOLE_PREPASS_PER_NODE: u64 = 32;
+
 fn prepass_pixels_at(width: u32, height: u32, stride: u32) -> u64 {
     let along = |n| sampled(n, stride).count() as u64;
     along(width) * along(height)
@@ -207,7 +233,7 @@ pub fn map_whole(
     height: u32,
     d: u32,
 ) -> Result<Mapped> {
-    let stride = prepass_stride(width, height, 1 << d);
+    let stride = whole_prepass_stride(width, height, 1 << d);
     let (work, _) = prepass(cs, scene, width, height, Walked::ByPixel, stride)?;
     let owner = spread(&work, d);
     Ok((work, owner, Vec::new()))
@@ -927,6 +953,32 @@ mod tests {
                 *l > 0.5 * mean && *l < 1.5 * mean,
                 "node {n}: {l} against {mean}"
             );
+        }
+    }
+
+    /// With the whole scene on every node, the pre-pass samples finer
+    /// than `PREPASS_STRIDE` only where a node would get fewer than
+    /// `WHOLE_PREPASS_PER_NODE` pixels at it, and then at the coarsest
+    /// stride that gives them, or every pixel.
+    #[test]
+    fn the_whole_scenes_prepass_samples_small_images_finer() {
+        assert_eq!(whole_prepass_stride(1024, 1024, 32), PREPASS_STRIDE);
+        assert_eq!(whole_prepass_stride(1024, 1024, 1), PREPASS_STRIDE_MAX);
+        assert_eq!(whole_prepass_stride(80, 60, 32), 2);
+        assert_eq!(whole_prepass_stride(64, 48, 128), 1);
+        for (w, h) in [(1024, 1024), (320, 240), (80, 60), (64, 48), (7, 3)] {
+            for d in 0..8 {
+                let n = 1usize << d;
+                let stride = whole_prepass_stride(w, h, n);
+                let per_node = |s| prepass_pixels_at(w, h, s) / n as u64;
+                if stride < PREPASS_STRIDE {
+                    assert_eq!(prepass_stride(w, h, n), PREPASS_STRIDE);
+                    assert!(per_node(stride + 1) < WHOLE_PREPASS_PER_NODE);
+                    assert!(stride == 1 || per_node(stride) >= WHOLE_PREPASS_PER_NODE);
+                } else {
+                    assert_eq!(stride, prepass_stride(w, h, n), "{w}x{h}, {n} nodes");
+                }
+            }
         }
     }
 

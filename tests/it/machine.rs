@@ -280,13 +280,30 @@ fn a_plan_that_would_idle_most_nodes_gives_way_to_the_whole_scene() {
     let (alone, _) = machine(&scene, 0, w, h, 16);
     assert_eq!(differing(&film, &alone), 0);
     assert_eq!(differing(&paper_film, &alone), 0);
-    // Where the pre-pass samples too few pixels a node to deal the super
-    // cells out (the small sphere's 64x48 on 64 nodes), the default keeps
-    // the distributed plan, however uneven.
-    let sphere = load_scene(&repo("scenes/small/sphere.ron")).unwrap();
-    let plan = Plan::new(&sphere, &topo(6), &o).unwrap();
-    let uneven = plan.predicted_imbalance(6);
-    assert!(!plan.whole && uneven >= 4.0, "predicted {uneven}");
+}
+
+/// With the whole scene on every node, the pre-pass deals out a small
+/// image's super cells by samples of all of them: a room of mirrors at
+/// 64x48 on 8 nodes, sampled every 8 pixels (48 pixels in all), left a
+/// third of the super cells unsampled, all dealt to one node, whose
+/// counted work was 3 times the mean; every 3 pixels, 1.2.
+#[test]
+fn the_whole_scenes_small_image_is_dealt_out_evenly() {
+    let text = hypercast::r#gen::stress::mirror_hall(16, true, 64, 48);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("hall.ron");
+    std::fs::write(&path, text).unwrap();
+    let scene = load_scene(&path).unwrap();
+    let (film, stats) = machine_with(&scene, 3, (64, 48), 16, Replicas::Whole);
+    let work: Vec<f64> = stats
+        .per_node
+        .iter()
+        .map(|n| (n.cells_visited + 4 * n.intersection_tests) as f64)
+        .collect();
+    let uneven = machine::max_over_mean(work.iter().copied());
+    assert!(uneven < 1.5, "counted work {uneven} times the mean");
+    let (alone, _) = machine(&scene, 0, 64, 48, 16);
+    assert_eq!(differing(&film, &alone), 0);
 }
 
 /// Splits that would multiply the crossings between nodes are not made:
@@ -321,12 +338,18 @@ fn splits_that_multiply_the_crossings_are_not_made() {
         "no heavy super cell to split"
     );
     // Its rays cross between nodes at every turn even unsplit, so the
-    // plan gathers them on the cost model's super cells: the single
-    // node's image without a hop.
-    let chosen = Plan::new(&scene, &topo(d), &o).unwrap();
+    // plan distributed as in the paper gathers them on the cost model's
+    // super cells: the single node's image without a hop. (By default
+    // the whole scene then goes to every node instead, as that plan
+    // leaves most nodes idle: `a_plan_that_would_idle_most_nodes_...`.)
+    let paper = MachineOptions {
+        replicas: Replicas::None,
+        ..o.clone()
+    };
+    let chosen = Plan::new(&scene, &topo(d), &paper).unwrap();
     assert_eq!(chosen.subdivision, Subdivision::Gathered);
     assert!(chosen.crossings * 2 < plan.crossings);
-    let (film, stats, _) = machine::render(&scene, &topo(d), &o, &|_| {}).unwrap();
+    let (film, stats, _) = machine::render(&scene, &topo(d), &paper, &|_| {}).unwrap();
     assert_eq!(stats.subdivision, Subdivision::Gathered);
     check_stats(&scene, &stats);
     let (alone, _) = machine(&scene, 0, w, h, 16);
