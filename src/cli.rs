@@ -1178,6 +1178,8 @@ fn run_inspect(a: InspectArgs) -> Result<()> {
         outln!(
             "placement           the whole scene on every node: distributed, the plan predicted imbalance {uneven:.3} (--replicas none keeps it)"
         )?;
+    } else if plan.whole {
+        outln!("placement           the whole scene on every node (--replicas whole)")?;
     }
     outln!(
         "node  super_cells  copies  cells  primitives  memory_MiB  structure_MiB  estimated_work"

@@ -724,14 +724,25 @@ fn the_default_placement_names_a_whole_scene_it_chose() {
     );
     let image = |f: &str| std::fs::read(tmp.path().join(f)).unwrap();
     assert_eq!(image("auto.png"), image("paper.png"));
-    let mut args = vec!["inspect", path_str(&hall)];
-    args.extend_from_slice(&machine);
-    let o = run(tmp.path(), &args);
-    let out = String::from_utf8_lossy(&o.stdout);
+    let inspect = |extra: &[&str]| {
+        let mut args = vec!["inspect", path_str(&hall)];
+        args.extend_from_slice(&machine);
+        args.extend_from_slice(extra);
+        let o = run(tmp.path(), &args);
+        assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    };
+    let out = inspect(&[]);
     assert!(
-        out.contains("placement           the whole scene on every node"),
+        out.contains("placement           the whole scene on every node: distributed"),
         "{out}"
     );
+    let out = inspect(&["--replicas", "whole"]);
+    assert!(
+        out.contains("placement           the whole scene on every node (--replicas whole)"),
+        "{out}"
+    );
+    assert!(!inspect(&["--replicas", "none"]).contains("placement"));
 }
 
 /// `--stats` says what a scene does not need, in numbers (issue 5): no
