@@ -485,7 +485,7 @@ impl Plan {
     /// this one. Fails as `new` does.
     fn or_whole(self, scene: &Scene, topo: &Topology, opts: &MachineOptions) -> Result<Plan> {
         let uneven = self.predicted_imbalance(topo.dimension);
-        let nodes = self.share_bytes.len() as f64;
+        let nodes = topo.nodes() as f64;
         if opts.replicas != Replicas::Auto
             || opts.mapping != Mapping::Balanced
             || nodes < 2.0
@@ -1217,8 +1217,7 @@ pub fn render_adaptive(
     stats.split_super_cells = plan.split_super_cells;
     stats.subdivision = plan.subdivision;
     stats.replicated_bytes = plan.replicated_bytes;
-    stats.predicted_imbalance =
-        mapping::predicted_imbalance(&plan.work, &plan.owner, topo.dimension);
+    stats.predicted_imbalance = plan.predicted_imbalance(topo.dimension);
     Ok((film, stats, plan.cells, aa))
 }
 
@@ -1792,7 +1791,7 @@ mod tests {
             ("scenes/csg_basics.ron", 7, 160, 120, 2.0),
         ] {
             let plan = plan_of(file, d, w, h);
-            let uneven = mapping::predicted_imbalance(&plan.work, &plan.owner, d);
+            let uneven = plan.predicted_imbalance(d);
             assert!(
                 uneven < most,
                 "{file} on {} nodes: predicted imbalance {uneven}, {} super cells",
@@ -1815,7 +1814,7 @@ mod tests {
         for (d, most) in [(3, 2.0), (4, 2.0), (5, 3.0)] {
             let plan = plan_of("scenes/small/behind_eye.ron", d, 160, 120);
             let behind = plan.cells.region(Region::Back).supers.len();
-            let uneven = mapping::predicted_imbalance(&plan.work, &plan.owner, d);
+            let uneven = plan.predicted_imbalance(d);
             assert!(
                 behind > 1 && uneven < most,
                 "on {} nodes: {behind} super cells behind the eye, predicted imbalance {uneven}",
@@ -1831,7 +1830,7 @@ mod tests {
     #[test]
     fn a_round_less_even_far_from_even_is_built_on() {
         let plan = plan_of("scenes/house.ron", 7, 640, 480);
-        let uneven = mapping::predicted_imbalance(&plan.work, &plan.owner, 7);
+        let uneven = plan.predicted_imbalance(7);
         assert!(
             plan.rebuilds == 2 && uneven < 4.0,
             "{} rounds, predicted imbalance {uneven}",
@@ -1923,7 +1922,7 @@ mod tests {
     /// The imbalance the plan for the iPSC-D5's 32 nodes predicts.
     fn predicted_on_32(scene: &Scene, w: u32, h: u32) -> f64 {
         let plan = Plan::new(scene, &Topology::ipsc_d5(), &MachineOptions::new(w, h, 1)).unwrap();
-        mapping::predicted_imbalance(&plan.work, &plan.owner, 5)
+        plan.predicted_imbalance(5)
     }
 
     /// A camera of a hundredth of a degree sees a patch of one super cell

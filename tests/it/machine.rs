@@ -241,7 +241,7 @@ fn the_balanced_mapping_evens_the_predicted_load() {
     let scene = load_scene(&repo("scenes/csg_basics.ron")).unwrap();
     let o = MachineOptions::new(320, 240, 1);
     let plan = Plan::new(&scene, &topo(5), &o).unwrap();
-    let imbalance = machine::mapping::predicted_imbalance(&plan.work, &plan.owner, 5);
+    let imbalance = plan.predicted_imbalance(5);
     assert!(imbalance < 1.25, "predicted imbalance {imbalance}");
 }
 
@@ -1174,7 +1174,7 @@ fn whole_replicas_even_the_loads_of_32_nodes() {
     let mut o = MachineOptions::new(640, 480, 1);
     o.replicas = Replicas::Whole;
     let plan = Plan::new(&scene, &topo(5), &o).unwrap();
-    let predicted = machine::mapping::predicted_imbalance(&plan.work, &plan.owner, 5);
+    let predicted = plan.predicted_imbalance(5);
     assert!(predicted <= 1.05, "predicted imbalance {predicted}");
     assert!(plan.split_super_cells > 0);
     assert!(plan.whole && plan.crossings == 0);
